@@ -1,0 +1,1 @@
+"""Stereo-inertial backend: IMU preintegration, initialisation, GTSAM smoother, health."""

@@ -1,0 +1,1 @@
+"""Subcommands, discovered by `eurocslam.cli`. One module per command."""

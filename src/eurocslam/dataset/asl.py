@@ -1,0 +1,317 @@
+"""EuRoC ASL folder reader: `mav0/{cam0,cam1,imu0,state_groundtruth_estimate0,leica0}`.
+
+Streams images lazily (memory does not grow with sequence length). Stereo pairs are joined on
+timestamp, never on position. Listed-but-missing images, unreadable PNGs and frames present in
+one camera only are skipped and counted in `skips` (reported once by the caller).
+Malformed CSV rows raise `DatasetError` naming the file and line; a truncated *last* row (an
+interrupted copy) is skipped and counted.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from eurocslam.dataset.calib import StereoRig, load_rig
+from eurocslam.dataset.types import (
+    GroundTruth,
+    I64,
+    ImuData,
+    PositionData,
+    SkipReport,
+    StereoFrame,
+    U8,
+)
+from eurocslam.errors import DatasetError
+from eurocslam.geometry import normalize_quat
+
+SENSORS = ("cam0", "cam1", "imu0", "state_groundtruth_estimate0", "leica0")
+
+
+def resolve_mav0(path: Path | str) -> Path:
+    """Accept a sequence folder (containing `mav0/`) or the `mav0/` folder itself."""
+    p = Path(path)
+    if not p.exists():
+        raise DatasetError(f"{p}: no such file or folder")
+    if (p / "mav0").is_dir():
+        return p / "mav0"
+    if (p / "cam0").is_dir() or (p / "imu0").is_dir():
+        return p
+    raise DatasetError(
+        f"{p}: not an EuRoC ASL sequence (expected a 'mav0/' folder with cam0, cam1, imu0)"
+    )
+
+
+@dataclass(frozen=True)
+class CsvTable:
+    """Numeric rows of an ASL data.csv: int64 timestamps plus float columns."""
+
+    path: Path
+    t_ns: I64
+    values: np.ndarray  # (N, ncols-1) float64
+    line_numbers: np.ndarray  # 1-based line number of each row in the file
+
+
+def _looks_like_seconds(tok: str) -> bool:
+    try:
+        v = float(tok)
+    except ValueError:
+        return False
+    return "." in tok or "e" in tok.lower() or v < 1e12
+
+
+def read_numeric_csv(path: Path, ncols: int, skips: SkipReport | None = None) -> CsvTable:
+    """Read an ASL CSV with `ncols` columns: timestamp [ns] (integer) then floats.
+
+    Comment/header lines start with '#'. Errors name the file and line.
+    """
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{path}: cannot read: {e}") from None
+    lines = text.splitlines()
+    data_lines = [
+        (i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")
+    ]
+    t = np.empty(len(data_lines), dtype=np.int64)
+    vals = np.empty((len(data_lines), ncols - 1), dtype=np.float64)
+    lineno = np.empty(len(data_lines), dtype=np.int64)
+    n = 0
+    last = len(data_lines) - 1
+    for k, (no, ln) in enumerate(data_lines):
+        parts = [s.strip() for s in ln.split(",")]
+        if len(parts) != ncols:
+            if k == last and len(parts) < ncols and skips is not None:
+                skips.add("truncated last row", f"{path}:{no}")
+                continue
+            raise DatasetError(f"{path}:{no}: expected {ncols} columns, found {len(parts)}")
+        try:
+            t[n] = int(parts[0])
+        except ValueError:
+            if _looks_like_seconds(parts[0]):
+                raise DatasetError(
+                    f"{path}:{no}: timestamp '{parts[0]}' looks like seconds; EuRoC timestamps "
+                    "are integer nanoseconds"
+                ) from None
+            raise DatasetError(f"{path}:{no}: timestamp '{parts[0]}' is not an integer") from None
+        try:
+            vals[n] = [float(s) for s in parts[1:]]
+        except ValueError:
+            raise DatasetError(f"{path}:{no}: non-numeric value in '{ln.strip()}'") from None
+        if not np.all(np.isfinite(vals[n])):
+            raise DatasetError(f"{path}:{no}: non-finite value in '{ln.strip()}'")
+        lineno[n] = no
+        n += 1
+    return CsvTable(path, t[:n], vals[:n], lineno[:n])
+
+
+def read_image_csv(path: Path, skips: SkipReport | None = None) -> tuple[I64, list[str], I64]:
+    """Read cam*/data.csv: (timestamps, filenames, line numbers)."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{path}: cannot read: {e}") from None
+    ts: list[int] = []
+    names: list[str] = []
+    nos: list[int] = []
+    rows = [
+        (i + 1, ln)
+        for i, ln in enumerate(text.splitlines())
+        if ln.strip() and not ln.lstrip().startswith("#")
+    ]
+    for k, (no, ln) in enumerate(rows):
+        parts = [s.strip() for s in ln.split(",")]
+        if len(parts) != 2 or not parts[1]:
+            if k == len(rows) - 1 and skips is not None:
+                skips.add("truncated last row", f"{path}:{no}")
+                continue
+            raise DatasetError(f"{path}:{no}: expected 2 columns (timestamp, filename)")
+        try:
+            ts.append(int(parts[0]))
+        except ValueError:
+            hint = " (looks like seconds; expected integer nanoseconds)"
+            raise DatasetError(
+                f"{path}:{no}: timestamp '{parts[0]}' is not an integer"
+                + (hint if _looks_like_seconds(parts[0]) else "")
+            ) from None
+        names.append(parts[1])
+        nos.append(no)
+    return np.array(ts, dtype=np.int64), names, np.array(nos, dtype=np.int64)
+
+
+def _sorted_unique(
+    t: I64, what: str, path: Path, skips: SkipReport
+) -> np.ndarray:
+    """Indices that sort `t` and drop duplicate timestamps (counted)."""
+    if t.size and np.any(np.diff(t) < 0):
+        skips.add("out-of-order timestamps (sorted)", str(path))
+    order = np.argsort(t, kind="stable")
+    ts = t[order]
+    keep = np.ones(ts.size, dtype=bool)
+    keep[1:] = ts[1:] != ts[:-1]
+    for _ in range(int((~keep).sum())):
+        skips.add(f"duplicate {what} timestamp (dropped)", str(path))
+    return order[keep]
+
+
+def read_image(path: Path) -> U8 | None:
+    """Decode an 8-bit mono image; None if it is unreadable (caller counts the skip)."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return None
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+    if img.dtype != np.uint8:
+        img = (img / 256).astype(np.uint8) if img.dtype == np.uint16 else img.astype(np.uint8)
+    return img
+
+
+@dataclass(frozen=True)
+class FrameEntry:
+    """A stereo frame's timestamp and image files (None when that camera lacks it)."""
+
+    t_ns: int
+    left: Path | None
+    right: Path | None
+
+
+class AslSequence:
+    """An EuRoC ASL sequence folder. Implements `SequenceSource`."""
+
+    def __init__(self, path: Path | str, rig: StereoRig | None = None) -> None:
+        self.mav0 = resolve_mav0(path)
+        self.root = self.mav0.parent if self.mav0.name == "mav0" else self.mav0
+        self.name = self.root.name
+        self.skips = SkipReport()
+        self.rig = rig if rig is not None else load_rig(self.mav0)
+        self.imu = self._read_imu()
+        self.groundtruth = self._read_groundtruth()
+        self.leica = self._read_leica()
+        self.entries = self._join_cameras()
+
+    # ---- tables -----------------------------------------------------------------------------
+    def _read_imu(self) -> ImuData:
+        path = self.mav0 / "imu0" / "data.csv"
+        tab = read_numeric_csv(path, 7, self.skips)
+        if tab.t_ns.size == 0:
+            raise DatasetError(f"{path}: no IMU rows")
+        idx = _sorted_unique(tab.t_ns, "IMU", path, self.skips)
+        v = tab.values[idx]
+        return ImuData(tab.t_ns[idx], np.ascontiguousarray(v[:, 0:3]), np.ascontiguousarray(v[:, 3:6]))
+
+    def _read_groundtruth(self) -> GroundTruth | None:
+        path = self.mav0 / "state_groundtruth_estimate0" / "data.csv"
+        if not path.exists():
+            return None
+        tab = read_numeric_csv(path, 17, self.skips)
+        idx = _sorted_unique(tab.t_ns, "ground-truth", path, self.skips)
+        v = tab.values[idx]
+        try:
+            q = normalize_quat(v[:, 3:7])
+        except ValueError:
+            bad = int(np.argmin(np.linalg.norm(v[:, 3:7], axis=1)))
+            raise DatasetError(f"{path}:{tab.line_numbers[idx][bad]}: zero quaternion") from None
+        return GroundTruth(
+            t_ns=tab.t_ns[idx], p=v[:, 0:3].copy(), q_wxyz=q, v=v[:, 7:10].copy(),
+            bg=v[:, 10:13].copy(), ba=v[:, 13:16].copy(),
+        )
+
+    def _read_leica(self) -> PositionData | None:
+        path = self.mav0 / "leica0" / "data.csv"
+        if not path.exists():
+            return None
+        tab = read_numeric_csv(path, 4, self.skips)
+        idx = _sorted_unique(tab.t_ns, "leica0", path, self.skips)
+        return PositionData(tab.t_ns[idx], tab.values[idx].copy())
+
+    def _camera(self, cam: str) -> dict[int, Path | None]:
+        path = self.mav0 / cam / "data.csv"
+        t, names, _ = read_image_csv(path, self.skips)
+        folder = self.mav0 / cam / "data"
+        present = {p.name for p in folder.iterdir()} if folder.is_dir() else set()
+        out: dict[int, Path | None] = {}
+        for ti, name in zip(t.tolist(), names):
+            if ti in out:
+                self.skips.add(f"duplicate {cam} timestamp (dropped)", f"{path}: {ti}")
+                continue
+            if name in present:
+                out[ti] = folder / name
+            else:
+                self.skips.add(f"{cam} image listed but missing", str(folder / name))
+                out[ti] = None
+        return out
+
+    def _join_cameras(self) -> list[FrameEntry]:
+        c0 = self._camera("cam0")
+        c1 = self._camera("cam1")
+        entries = []
+        for t in sorted(set(c0) | set(c1)):
+            left, right = c0.get(t), c1.get(t)
+            if t not in c0:
+                self.skips.add("frame in cam1 only", str(t))
+            elif t not in c1:
+                self.skips.add("frame in cam0 only", str(t))
+            entries.append(FrameEntry(t, left, right))
+        return entries
+
+    # ---- streams ----------------------------------------------------------------------------
+    @property
+    def frame_times(self) -> I64:
+        return np.array([e.t_ns for e in self.entries], dtype=np.int64)
+
+    @property
+    def complete_entries(self) -> list[FrameEntry]:
+        return [e for e in self.entries if e.left is not None and e.right is not None]
+
+    def sensor_yaml_paths(self) -> dict[str, Path]:
+        out = {}
+        for s in (*SENSORS, "body"):
+            p = self.mav0 / s / "sensor.yaml" if s != "body" else self.mav0 / "body.yaml"
+            if p.exists():
+                out[s] = p
+        return out
+
+    def frames(
+        self,
+        *,
+        include_incomplete: bool = False,
+        t_start_ns: int | None = None,
+        t_end_ns: int | None = None,
+    ) -> Iterator[StereoFrame]:
+        """Yield stereo frames in time order, decoding images lazily.
+
+        Unreadable images are counted in `skips`. With `include_incomplete`, frames lacking one
+        or both images are yielded with None in their place (the pipeline bridges them).
+        """
+        for e in self.entries:
+            if t_start_ns is not None and e.t_ns < t_start_ns:
+                continue
+            if t_end_ns is not None and e.t_ns > t_end_ns:
+                break
+            left = self._load(e.left)
+            right = self._load(e.right)
+            if left is None or right is None:
+                if not include_incomplete:
+                    continue
+            yield StereoFrame(e.t_ns, left, right, e.left, e.right)
+
+    def _load(self, path: Path | None) -> U8 | None:
+        if path is None:
+            return None
+        img = read_image(path)
+        if img is None:
+            self.skips.add("unreadable image", str(path))
+        return img
+
+
+def open_sequence(path: Path | str, rig: StereoRig | None = None) -> AslSequence:
+    """Open an input sequence. (ASL folders today; bags and MCAP join here.)"""
+    return AslSequence(path, rig)

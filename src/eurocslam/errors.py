@@ -1,0 +1,47 @@
+"""One exception root; one subclass per subsystem. Messages name the file, row or key at fault.
+
+The CLI maps every `EurocSlamError` to a one-line message on stderr and a non-zero exit code;
+anything else is a bug and is reported as such.
+"""
+
+from __future__ import annotations
+
+
+class EurocSlamError(Exception):
+    """Root of every error eurocslam raises on purpose (bad input, bad config, I/O)."""
+
+    exit_code: int = 2
+
+
+class DatasetError(EurocSlamError):
+    """A sequence folder, CSV, image or sensor.yaml is missing or malformed."""
+
+
+class CalibrationError(DatasetError):
+    """A sensor.yaml is missing a key or holds values that cannot be a calibration."""
+
+
+class ConfigError(EurocSlamError):
+    """A configuration file has an unknown key, a missing key or a bad value."""
+
+
+class OutputError(EurocSlamError):
+    """An output (MCAP, trajectory file, plot) could not be written."""
+
+
+class EvalError(EurocSlamError):
+    """Trajectories could not be read, associated or aligned."""
+
+
+class SlamError(EurocSlamError):
+    """The estimator hit a state it cannot recover from."""
+
+
+def where(path: object, row: int | None = None, key: str | None = None) -> str:
+    """Format a location for error messages: 'path:row (key)'."""
+    s = str(path)
+    if row is not None:
+        s += f":{row}"
+    if key is not None:
+        s += f" ({key})"
+    return s

@@ -1,0 +1,1 @@
+"""Stereo visual frontend: ORB features, stereo matching, tracking, keyframes."""

@@ -1,0 +1,58 @@
+"""Typed boundary between the frontend and the backend/pipeline.
+
+The frontend works in the *rectified* cam0 frame (`rect0`): stereo measurements (uL, uR, v)
+are rectified pixel coordinates, so the backend can use `gtsam.Cal3_S2Stereo` +
+`GenericStereoFactor3D` with `body_P_sensor = T_body_rect0`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from eurocslam.geometry import F64
+
+
+class TrackingState(str, Enum):
+    INIT = "INIT"  # no map yet / first frame
+    OK = "OK"  # tracked against the local map
+    LOST = "LOST"  # images present but tracking failed (too few inliers, PnP failed)
+    NO_IMAGE = "NO_IMAGE"  # blank, saturated or missing image(s)
+
+
+@dataclass(frozen=True)
+class RectifiedStereo:
+    """Rectified stereo geometry: identical pinhole intrinsics for both cameras."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline: float  # metres, rect1 = rect0 translated by +baseline along x
+    width: int
+    height: int
+    T_body_rect0: F64  # 4x4: rectified cam0 frame -> body (IMU) frame
+
+
+@dataclass(frozen=True)
+class FrontendResult:
+    """Everything the frontend knows about one stereo frame."""
+
+    t_ns: int
+    state: TrackingState
+    # stereo observations of persistent landmarks, rows aligned
+    landmark_ids: NDArray[np.int64]  # (N,)
+    stereo_uv: F64  # (N, 3): uL, uR, v in rectified pixels (uR = NaN if mono-only)
+    # the frontend's own pose estimate (PnP / VO), None when lost
+    T_world_body: F64 | None
+    is_keyframe: bool
+    n_features: int  # ORB keypoints in the left image
+    n_stereo: int  # of which stereo-matched
+    n_tracked: int  # landmarks tracked (PnP inliers)
+    # 2D points in *raw* (unrectified) cam0 pixels for drawing: (M, 2), and whether tracked
+    draw_uv: F64 = field(default_factory=lambda: np.zeros((0, 2)))
+    draw_tracked: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    timings_ms: dict[str, float] = field(default_factory=dict)

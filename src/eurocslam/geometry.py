@@ -1,0 +1,165 @@
+"""SE(3) and quaternion helpers. The only place that converts wxyz <-> xyzw.
+
+Conventions: `T_a_b` is a 4x4 homogeneous matrix mapping points from frame b into frame a.
+Quaternions are Hamilton, unit norm; arrays are `(..., 4)`. EuRoC CSVs are w-first (`wxyz`),
+ROS and TUM are x-first (`xyzw`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+
+
+def wxyz_to_xyzw(q: F64) -> F64:
+    q = np.asarray(q, dtype=np.float64)
+    return np.concatenate([q[..., 1:4], q[..., 0:1]], axis=-1)
+
+
+def xyzw_to_wxyz(q: F64) -> F64:
+    q = np.asarray(q, dtype=np.float64)
+    return np.concatenate([q[..., 3:4], q[..., 0:3]], axis=-1)
+
+
+def normalize_quat(q: F64) -> F64:
+    """Normalise quaternions (any layout); raises ValueError on a zero-norm quaternion."""
+    q = np.asarray(q, dtype=np.float64)
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    if np.any(n < 1e-12):
+        raise ValueError("zero-norm quaternion")
+    return q / n
+
+
+def quat_wxyz_to_rot(q: F64) -> F64:
+    """Rotation matrices (..., 3, 3) from unit quaternions (..., 4) in wxyz order."""
+    q = normalize_quat(q)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    r = np.empty((*q.shape[:-1], 3, 3))
+    r[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    r[..., 0, 1] = 2 * (x * y - z * w)
+    r[..., 0, 2] = 2 * (x * z + y * w)
+    r[..., 1, 0] = 2 * (x * y + z * w)
+    r[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    r[..., 1, 2] = 2 * (y * z - x * w)
+    r[..., 2, 0] = 2 * (x * z - y * w)
+    r[..., 2, 1] = 2 * (y * z + x * w)
+    r[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return r
+
+
+def rot_to_quat_wxyz(r: F64) -> F64:
+    """Unit quaternions (..., 4) wxyz with w >= 0 from rotation matrices (..., 3, 3). Vectorised."""
+    r = np.asarray(r, dtype=np.float64)
+    shape = r.shape[:-2]
+    m = r.reshape(-1, 3, 3)
+    d0, d1, d2 = m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]
+    # four candidate solutions; pick the numerically largest denominator per matrix (Shepperd)
+    cand = np.stack(
+        [
+            np.stack([1 + d0 + d1 + d2, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0],
+                      m[:, 1, 0] - m[:, 0, 1]], axis=1),
+            np.stack([m[:, 2, 1] - m[:, 1, 2], 1 + d0 - d1 - d2, m[:, 0, 1] + m[:, 1, 0],
+                      m[:, 0, 2] + m[:, 2, 0]], axis=1),
+            np.stack([m[:, 0, 2] - m[:, 2, 0], m[:, 0, 1] + m[:, 1, 0], 1 - d0 + d1 - d2,
+                      m[:, 1, 2] + m[:, 2, 1]], axis=1),
+            np.stack([m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1],
+                      1 - d0 - d1 + d2], axis=1),
+        ],
+        axis=1,
+    )
+    key = np.stack([1 + d0 + d1 + d2, 1 + d0 - d1 - d2, 1 - d0 + d1 - d2, 1 - d0 - d1 + d2], axis=1)
+    q = cand[np.arange(m.shape[0]), np.argmax(key, axis=1)]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[q[:, 0] < 0] *= -1
+    return q.reshape(*shape, 4)
+
+
+def make_T(r: F64, t: F64) -> F64:
+    """4x4 (or (..., 4, 4)) homogeneous transforms from rotations and translations."""
+    r = np.asarray(r, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    T = np.zeros((*r.shape[:-2], 4, 4))
+    T[..., :3, :3] = r
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def inv_T(T: F64) -> F64:
+    """Inverse of rigid transforms (..., 4, 4)."""
+    T = np.asarray(T, dtype=np.float64)
+    r = T[..., :3, :3]
+    rt = np.swapaxes(r, -1, -2)
+    t = T[..., :3, 3]
+    return make_T(rt, -np.einsum("...ij,...j->...i", rt, t))
+
+
+def transform_points(T: F64, p: F64) -> F64:
+    """Apply T (4x4) to points (N, 3)."""
+    p = np.asarray(p, dtype=np.float64)
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def skew(v: F64) -> F64:
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+def so3_exp(w: F64) -> F64:
+    """Rodrigues: rotation matrix from a rotation vector (3,)."""
+    w = np.asarray(w, dtype=np.float64)
+    th = float(np.linalg.norm(w))
+    if th < 1e-12:
+        return np.eye(3) + skew(w)
+    k = skew(w / th)
+    return np.eye(3) + np.sin(th) * k + (1 - np.cos(th)) * (k @ k)
+
+
+def so3_log(r: F64) -> F64:
+    """Rotation vector (3,) from a rotation matrix."""
+    r = np.asarray(r, dtype=np.float64)
+    c = np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)
+    th = float(np.arccos(c))
+    if th < 1e-9:
+        return np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]]) / 2.0
+    if np.pi - th < 1e-6:
+        # near pi: axis from the largest diagonal element of (R + I) / 2
+        b = (r + np.eye(3)) / 2.0
+        i = int(np.argmax(np.diag(b)))
+        axis = b[:, i] / np.sqrt(max(b[i, i], 1e-12))
+        return axis / np.linalg.norm(axis) * th
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    return v * th / (2.0 * np.sin(th))
+
+
+def rotation_angle(r: F64) -> float:
+    """Rotation angle in radians of a rotation matrix."""
+    return float(np.arccos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def yaw_of(r: F64) -> float:
+    """Yaw (rotation about world z) of a rotation matrix, ZYX convention."""
+    return float(np.arctan2(r[1, 0], r[0, 0]))
+
+
+def rot_z(yaw: float) -> F64:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rotation_between(a: F64, b: F64) -> F64:
+    """Smallest rotation R with R @ a/|a| = b/|b|."""
+    a = np.asarray(a, dtype=np.float64) / np.linalg.norm(a)
+    b = np.asarray(b, dtype=np.float64) / np.linalg.norm(b)
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    if c < -1 + 1e-12:
+        # opposite: rotate pi about any axis orthogonal to a
+        axis = np.cross(a, [1.0, 0.0, 0.0])
+        if np.linalg.norm(axis) < 1e-6:
+            axis = np.cross(a, [0.0, 1.0, 0.0])
+        return so3_exp(axis / np.linalg.norm(axis) * np.pi)
+    k = skew(v)
+    return np.eye(3) + k + k @ k / (1.0 + c)

@@ -1,0 +1,1 @@
+"""Outputs: ROS 2 messages (CDR), MCAP writer, trajectory files, PLY."""
