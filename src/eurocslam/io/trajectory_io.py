@@ -1,0 +1,519 @@
+"""Trajectory files: TUM and EuRoC CSV, read and write, with exact nanosecond timestamps.
+
+`Trajectory` holds poses of the body frame in some world frame (`T_world_body`):
+
+* `t_ns`: int64 nanoseconds, strictly increasing within each segment;
+* `p`: (N, 3) positions in metres;
+* `q_wxyz`: (N, 4) unit quaternions, w first (converted to/from x-first only via `geometry`);
+* `segment`: optional (N,) int64 segment id per pose. A SLAM run that resets starts a new
+  segment; each segment lives in its own world frame and is aligned on its own by `eval`.
+
+File formats
+------------
+TUM (what evo and rpg_trajectory_evaluation read), whitespace separated, one pose per line::
+
+    # comment lines start with '#'
+    t[s] x y z qx qy qz qw
+
+Time is in **seconds**. `write_tum` writes it as an exact decimal of the integer nanoseconds
+(`1403636580.838555648`), so a write/read round trip is exact to the nanosecond (evo reads it as
+a float64: ~0.2 us resolution at EuRoC epochs). Segments: a comment line ``# segment N`` starts
+segment N; every pose line after it belongs to N until the next such line. Readers that ignore
+comments (evo) see one continuous trajectory. A file without segment lines is one segment (id 0).
+
+EuRoC CSV (ASL `data.csv` style), comma separated, a '#' header line::
+
+    #timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []
+
+Time is integer **nanoseconds**, quaternion **w first**. `write_euroc_csv` appends a 9th column
+``segment`` when the trajectory has segments. `read_euroc_csv` also reads the 17-column ASL
+ground truth (`state_groundtruth_estimate0/data.csv`; velocity and biases are ignored) and a
+trailing `segment` column named in the header.
+
+`read_trajectory(path)` detects the format from the content (separator, header names, number of
+columns, timestamp magnitudes), not from the extension. Timestamps are checked against their unit:
+a TUM file whose times look like nanoseconds, or a EuRoC CSV whose times look like seconds, is an
+`EvalError` that says so (override with `time_unit=`). Every error names the file and line.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from eurocslam.errors import EvalError, OutputError
+from eurocslam.geometry import (
+    F64,
+    make_T,
+    quat_wxyz_to_rot,
+    rot_to_quat_wxyz,
+    wxyz_to_xyzw,
+    xyzw_to_wxyz,
+)
+
+I64 = NDArray[np.int64]
+TimeUnit = Literal["auto", "s", "ns"]
+Format = Literal["auto", "tum", "euroc"]
+
+NS_PER_S = 1_000_000_000
+# Plausible bounds used to tell seconds from nanoseconds. Unix time in seconds is ~1.7e9 today,
+# in nanoseconds ~1.7e18. A time column in seconds above 1e11 (3,000 years) is nanoseconds; an
+# integer nanosecond column whose largest value is below 1e7 (10 ms) is seconds (relative
+# nanosecond times from 0, as synthetic sequences use, are far above that after a second).
+_SECONDS_MAX = 1e11
+_NS_MIN = 1e7
+
+EUROC_HEADER = (
+    "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []"
+)
+_SEGMENT_RE = re.compile(r"^#\s*segment\s+(-?\d+)\s*$", re.IGNORECASE)
+_DEC_RE = re.compile(r"^([+-]?)(\d*)(?:\.(\d*))?$")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Timestamped poses `T_world_body`. See the module docstring for the fields."""
+
+    t_ns: I64
+    p: F64
+    q_wxyz: F64
+    segment: I64 | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t_ns)
+        if t.ndim != 1 or t.dtype != np.int64:
+            raise ValueError(f"Trajectory.t_ns must be int64[N], got {t.dtype}{list(t.shape)}")
+        n = t.shape[0]
+        if np.shape(self.p) != (n, 3):
+            raise ValueError(f"Trajectory.p must be ({n}, 3), got {np.shape(self.p)}")
+        if np.shape(self.q_wxyz) != (n, 4):
+            raise ValueError(f"Trajectory.q_wxyz must be ({n}, 4), got {np.shape(self.q_wxyz)}")
+        if self.segment is not None and np.shape(self.segment) != (n,):
+            raise ValueError(f"Trajectory.segment must be ({n},), got {np.shape(self.segment)}")
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+    @classmethod
+    def from_poses(
+        cls, t_ns: I64, T_world_body: F64, segment: I64 | None = None, name: str = ""
+    ) -> Trajectory:
+        """Build from (N, 4, 4) rigid transforms."""
+        T = np.asarray(T_world_body, dtype=np.float64)
+        return cls(
+            np.asarray(t_ns, dtype=np.int64),
+            np.ascontiguousarray(T[:, :3, 3]),
+            rot_to_quat_wxyz(T[:, :3, :3]),
+            segment,
+            name,
+        )
+
+    def rotations(self) -> F64:
+        """(N, 3, 3) rotation matrices R_world_body."""
+        return quat_wxyz_to_rot(self.q_wxyz)
+
+    def T_world_body(self) -> F64:
+        """(N, 4, 4) poses."""
+        return make_T(self.rotations(), self.p)
+
+    @property
+    def has_segments(self) -> bool:
+        return self.segment is not None and np.unique(self.segment).size > 1
+
+    def take(self, idx: NDArray[np.integer] | slice) -> Trajectory:
+        """A new trajectory with the poses at `idx` (index array or slice)."""
+        seg = None if self.segment is None else self.segment[idx]
+        return Trajectory(self.t_ns[idx], self.p[idx], self.q_wxyz[idx], seg, self.name)
+
+    def segments(self) -> list[tuple[int, Trajectory]]:
+        """(segment id, poses) in order of first appearance; one entry (0) without segments."""
+        if self.segment is None:
+            return [(0, self)]
+        out = []
+        ids, first = np.unique(self.segment, return_index=True)
+        for sid in ids[np.argsort(first)]:
+            out.append((int(sid), self.take(np.flatnonzero(self.segment == sid))))
+        return out
+
+    def with_name(self, name: str) -> Trajectory:
+        return Trajectory(self.t_ns, self.p, self.q_wxyz, self.segment, name)
+
+    def duration_s(self) -> float:
+        return float(self.t_ns[-1] - self.t_ns[0]) / NS_PER_S if len(self) else 0.0
+
+    def path_length(self) -> float:
+        """Travelled distance in metres (sum of position steps within segments)."""
+        total = 0.0
+        for _, seg in self.segments():
+            if len(seg) > 1:
+                total += float(np.linalg.norm(np.diff(seg.p, axis=0), axis=1).sum())
+        return total
+
+
+# ---------------------------------------------------------------------------------------------
+# time parsing / formatting
+
+
+def seconds_str_to_ns(tok: str) -> int:
+    """Exact conversion of a decimal seconds string ('1403636580.838555648', '1.4e+09') to ns.
+
+    Digits beyond the nanosecond are rounded half away from zero. Raises ValueError.
+    """
+    m = _DEC_RE.match(tok)
+    if m and (m.group(2) or m.group(3)):
+        sign, ip, fp = m.group(1), m.group(2) or "0", m.group(3) or ""
+        frac = (fp + "000000000")[:9]
+        ns = int(ip) * NS_PER_S + int(frac)
+        if len(fp) > 9 and fp[9] >= "5":
+            ns += 1
+        return -ns if sign == "-" else ns
+    try:
+        d = Decimal(tok)
+    except InvalidOperation:
+        raise ValueError(tok) from None
+    if not d.is_finite():
+        raise ValueError(tok)
+    return int((d * NS_PER_S).to_integral_value(rounding="ROUND_HALF_UP"))
+
+
+def ns_to_seconds_str(t_ns: int) -> str:
+    """Exact decimal seconds with 9 digits: 1403636580838555648 -> '1403636580.838555648'."""
+    t = int(t_ns)
+    sign = "-" if t < 0 else ""
+    s, ns = divmod(abs(t), NS_PER_S)
+    return f"{sign}{s}.{ns:09d}"
+
+
+class _FractionalNs(ValueError):
+    """A nanosecond column holds a value with a fractional part (probably seconds)."""
+
+
+def _int_ns(tok: str) -> int:
+    """Integer nanoseconds; accepts '1403636580838555648' and '1403636580838555648.000000'
+    (ORB-SLAM style). A non-zero fractional part raises _FractionalNs."""
+    try:
+        return int(tok)
+    except ValueError:
+        pass
+    m = _DEC_RE.match(tok)
+    if m and m.group(2):
+        if (m.group(3) or "").strip("0"):
+            raise _FractionalNs(tok)
+        return int(m.group(1) + m.group(2))
+    d = Decimal(tok)  # raises InvalidOperation -> caller reports
+    if not d.is_finite():
+        raise ValueError(tok)
+    if d != d.to_integral_value():
+        raise _FractionalNs(tok)
+    return int(d)
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+
+
+@dataclass(frozen=True)
+class _Layout:
+    fmt: Literal["tum", "euroc"]
+    sep: str | None  # None = whitespace
+    ncols: int  # columns per pose line
+    w_first: bool
+    segment_col: int | None
+
+
+def _read_lines(path: Path) -> list[str]:
+    try:
+        return path.read_text().splitlines()
+    except FileNotFoundError:
+        raise EvalError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise EvalError(f"{path}: is a folder, expected a trajectory file") from None
+    except UnicodeDecodeError:
+        raise EvalError(f"{path}: not a text file (TUM or EuRoC CSV expected)") from None
+    except OSError as e:
+        raise EvalError(f"{path}: cannot read: {e}") from None
+
+
+def _split(line: str, sep: str | None) -> list[str]:
+    if sep is None:
+        return line.split()
+    return [s.strip() for s in line.split(sep)]
+
+
+def _header_names(lines: list[str]) -> list[str] | None:
+    """Column names from the last '#' line before the first data line, if it names columns."""
+    header = None
+    for ln in lines:
+        s = ln.strip()
+        if not s:
+            continue
+        if not s.startswith("#"):
+            break
+        if _SEGMENT_RE.match(s):
+            continue
+        body = s.lstrip("#").strip()
+        names = [n.strip() for n in (body.split(",") if "," in body else body.split())]
+        if len(names) >= 8:
+            header = names
+    return header
+
+
+def _detect_layout(path: Path, lines: list[str], fmt: Format) -> _Layout:
+    first = next(
+        (
+            (i + 1, ln.strip())
+            for i, ln in enumerate(lines)
+            if ln.strip() and not ln.lstrip().startswith("#")
+        ),
+        None,
+    )
+    if first is None:
+        raise EvalError(f"{path}: no poses (only comments or blank lines)")
+    lineno, ln = first
+    sep = "," if "," in ln else None
+    ncols = len(_split(ln, sep))
+    names = _header_names(lines)
+    if fmt == "auto":
+        fmt = "euroc" if sep == "," else "tum"
+        if names and any(n.lower().startswith("q_rs_w") for n in names):
+            fmt = "euroc"
+    w_first = fmt == "euroc"
+    segment_col = None
+    if names:
+        lower = [n.lower().split()[0] if n.split() else "" for n in names]
+        qw = [i for i, n in enumerate(lower) if n in ("qw", "q_rs_w", "q_w", "w")]
+        if qw:
+            w_first = qw[0] == 4
+        if "segment" in lower:
+            segment_col = lower.index("segment")
+    if ncols < 8:
+        raise EvalError(
+            f"{path}:{lineno}: {ncols} columns; a trajectory needs 8 "
+            f"({'t x y z qx qy qz qw' if fmt == 'tum' else 't_ns,x,y,z,qw,qx,qy,qz'})"
+        )
+    if segment_col is None and ncols == 9 and fmt == "euroc":
+        raise EvalError(
+            f"{path}:{lineno}: 9 columns but no header naming the 9th ('segment'); expected 8 "
+            "(pose) or 17 (ASL ground truth)"
+        )
+    if segment_col is not None and segment_col >= ncols:
+        raise EvalError(f"{path}: header names a 'segment' column but rows have {ncols} columns")
+    return _Layout(fmt, sep, ncols, w_first, segment_col)
+
+
+def _check_time_unit(
+    path: Path, t_ns: I64, unit_in_file: str, lines: np.ndarray, time_unit: TimeUnit
+) -> None:
+    """Catch seconds-vs-nanoseconds mix-ups from the magnitudes."""
+    if time_unit != "auto" or t_ns.size == 0:
+        return
+    mag = float(np.max(np.abs(t_ns)))
+    if unit_in_file == "s" and mag / NS_PER_S > _SECONDS_MAX:
+        k = int(np.argmax(np.abs(t_ns)))
+        raise EvalError(
+            f"{path}:{lines[k]}: timestamp {mag / NS_PER_S:.6g} s looks like nanoseconds; TUM "
+            "time is in seconds (pass --time-unit ns if this file really holds nanoseconds)"
+        )
+    if unit_in_file == "ns" and 0 < mag < _NS_MIN:
+        k = int(np.argmax(np.abs(t_ns)))
+        raise EvalError(
+            f"{path}:{lines[k]}: timestamp {mag:.6g} ns looks like seconds; EuRoC CSV time is "
+            "integer nanoseconds (pass --time-unit s if this file really holds seconds)"
+        )
+
+
+def read_trajectory(
+    path: Path | str,
+    fmt: Format = "auto",
+    time_unit: TimeUnit = "auto",
+    name: str | None = None,
+) -> Trajectory:
+    """Read a TUM or EuRoC CSV trajectory file (format from the content unless `fmt` is given).
+
+    `time_unit`: 'auto' = the format's own unit (TUM seconds, EuRoC nanoseconds) with a
+    magnitude check; 's' or 'ns' force the unit of the time column.
+    Raises EvalError naming file and line for every malformed row, non-finite or zero-norm
+    quaternion, or timestamps that do not increase within a segment.
+    """
+    path = Path(path)
+    lines = _read_lines(path)
+    lay = _detect_layout(path, lines, fmt)
+    file_unit = "s" if lay.fmt == "tum" else "ns"
+    unit = file_unit if time_unit == "auto" else time_unit
+    to_ns = seconds_str_to_ns if unit == "s" else _int_ns
+
+    n_max = len(lines)
+    t = np.empty(n_max, dtype=np.int64)
+    vals = np.empty((n_max, 7), dtype=np.float64)
+    seg = np.empty(n_max, dtype=np.int64)
+    lineno = np.empty(n_max, dtype=np.int64)
+    cur_seg = 0
+    saw_segment = lay.segment_col is not None
+    n = 0
+    for i, raw in enumerate(lines):
+        s = raw.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            m = _SEGMENT_RE.match(s)
+            if m:
+                cur_seg = int(m.group(1))
+                saw_segment = True
+            continue
+        parts = _split(s, lay.sep)
+        if len(parts) != lay.ncols:
+            raise EvalError(
+                f"{path}:{i + 1}: expected {lay.ncols} columns like the first pose line, "
+                f"found {len(parts)}: '{s[:80]}'"
+            )
+        try:
+            t[n] = to_ns(parts[0])
+        except _FractionalNs:
+            if time_unit == "ns":
+                raise EvalError(
+                    f"{path}:{i + 1}: timestamp '{parts[0]}' is not an integer number of ns"
+                ) from None
+            raise EvalError(
+                f"{path}:{i + 1}: timestamp '{parts[0]}' looks like seconds; EuRoC CSV time is "
+                "integer nanoseconds (pass --time-unit s if this file really holds seconds)"
+            ) from None
+        except (ValueError, InvalidOperation):
+            raise EvalError(f"{path}:{i + 1}: timestamp '{parts[0]}' is not a number") from None
+        try:
+            vals[n] = [float(x) for x in parts[1:8]]
+        except ValueError:
+            raise EvalError(f"{path}:{i + 1}: non-numeric value in '{s[:80]}'") from None
+        if not np.all(np.isfinite(vals[n])):
+            raise EvalError(f"{path}:{i + 1}: non-finite value in '{s[:80]}'")
+        if lay.segment_col is not None:
+            try:
+                seg[n] = int(float(parts[lay.segment_col]))
+            except ValueError:
+                raise EvalError(
+                    f"{path}:{i + 1}: segment '{parts[lay.segment_col]}' is not an integer"
+                ) from None
+        else:
+            seg[n] = cur_seg
+        lineno[n] = i + 1
+        n += 1
+    t, vals, seg, lineno = t[:n], vals[:n], seg[:n], lineno[:n]
+    _check_time_unit(path, t, file_unit if time_unit == "auto" else time_unit, lineno, time_unit)
+
+    q_raw = vals[:, 3:7] if lay.w_first else xyzw_to_wxyz(vals[:, 3:7])
+    qn = np.linalg.norm(q_raw, axis=1)
+    bad = np.flatnonzero(qn < 1e-9)
+    if bad.size:
+        raise EvalError(f"{path}:{lineno[bad[0]]}: zero-norm quaternion")
+    q = q_raw / qn[:, None]
+    # timestamps must increase within each segment
+    for sid in np.unique(seg):
+        idx = np.flatnonzero(seg == sid)
+        d = np.diff(t[idx])
+        if np.any(d <= 0):
+            k = idx[int(np.argmax(d <= 0)) + 1]
+            what = "repeats" if t[k] == t[idx[np.searchsorted(idx, k) - 1]] else "goes backwards"
+            raise EvalError(
+                f"{path}:{lineno[k]}: timestamp {what} (must increase within a segment)"
+            )
+    return Trajectory(
+        t,
+        np.ascontiguousarray(vals[:, 0:3]),
+        q,
+        seg if saw_segment else None,
+        name if name is not None else path.name,
+    )
+
+
+def read_tum(path: Path | str, time_unit: TimeUnit = "auto") -> Trajectory:
+    """Read a TUM file (`t[s] x y z qx qy qz qw`, `# segment N` lines allowed)."""
+    return read_trajectory(path, "tum", time_unit)
+
+
+def read_euroc_csv(path: Path | str, time_unit: TimeUnit = "auto") -> Trajectory:
+    """Read a EuRoC CSV: 8 columns (pose), 17 (ASL ground truth) or a named `segment` column."""
+    return read_trajectory(path, "euroc", time_unit)
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    path = Path(path)
+    tmp = path.with_name(path.name + ".partial")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write: {e}") from None
+
+
+def _segment_starts(traj: Trajectory) -> list[tuple[int, int]]:
+    """(row index, segment id) where a new segment begins."""
+    if traj.segment is None:
+        return []
+    s = traj.segment
+    starts = [0, *list(np.flatnonzero(np.diff(s) != 0) + 1)] if len(s) else []
+    return [(int(i), int(s[i])) for i in starts]
+
+
+def format_tum(traj: Trajectory, header: str | None = None) -> str:
+    """TUM text for `traj` (see the module docstring); `header` becomes comment lines."""
+    q = wxyz_to_xyzw(traj.q_wxyz)
+    starts = dict(_segment_starts(traj))
+    out = []
+    if header:
+        out += [f"# {h}" for h in header.splitlines()]
+    out.append("# timestamp[s] tx ty tz qx qy qz qw")
+    for i in range(len(traj)):
+        if i in starts:
+            out.append(f"# segment {starts[i]}")
+        p = traj.p[i]
+        out.append(
+            f"{ns_to_seconds_str(traj.t_ns[i])} {p[0]:.9f} {p[1]:.9f} {p[2]:.9f} "
+            f"{q[i, 0]:.9f} {q[i, 1]:.9f} {q[i, 2]:.9f} {q[i, 3]:.9f}"
+        )
+    return "\n".join(out) + "\n"
+
+
+def write_tum(path: Path | str, traj: Trajectory, header: str | None = None) -> None:
+    """Write a TUM file atomically (`path.partial` then rename). Time: exact seconds.ns.
+
+    Segments become `# segment N` comment lines (only written when `traj.segment` is set).
+    Raises OutputError when the file cannot be written.
+    """
+    _atomic_write(Path(path), format_tum(traj, header))
+
+
+def format_euroc_csv(traj: Trajectory) -> str:
+    with_seg = traj.segment is not None
+    out = [EUROC_HEADER + (",segment" if with_seg else "")]
+    q = traj.q_wxyz
+    for i in range(len(traj)):
+        p = traj.p[i]
+        row = (
+            f"{int(traj.t_ns[i])},{p[0]:.9f},{p[1]:.9f},{p[2]:.9f},"
+            f"{q[i, 0]:.9f},{q[i, 1]:.9f},{q[i, 2]:.9f},{q[i, 3]:.9f}"
+        )
+        if with_seg:
+            row += f",{int(traj.segment[i])}"  # type: ignore[index]
+        out.append(row)
+    return "\n".join(out) + "\n"
+
+
+def write_euroc_csv(path: Path | str, traj: Trajectory) -> None:
+    """Write a EuRoC CSV atomically: integer ns, position, quaternion w first, and a `segment`
+    column when `traj.segment` is set. Raises OutputError when the file cannot be written."""
+    _atomic_write(Path(path), format_euroc_csv(traj))
