@@ -1,0 +1,131 @@
+"""Frontend / visual-odometry configuration (the `frontend:` section of `configs/euroc.yaml`).
+
+Field names are a stable interface: the pipeline builds `FrontendConfig(**section)` through
+`FrontendConfig.from_dict`, which rejects unknown keys and bad values with a `ConfigError`
+naming the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from eurocslam.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class FrontendConfig:
+    # ---- ORB features (features.py) ------------------------------------------------------
+    n_features: int = 1000  # keypoints kept per image after grid bucketing
+    grid_cols: int = 8  # bucketing grid over the image
+    grid_rows: int = 6
+    orb_scale_factor: float = 1.2  # pyramid scale between levels
+    orb_levels: int = 8
+    fast_threshold: int = 10  # FAST threshold (low: the grid keeps the strongest per cell)
+    orb_candidates_factor: float = 2.5  # ORB detects factor * n_features before bucketing
+
+    # ---- stereo rectification and matching (stereo.py, matching.py) ----------------------
+    rectify_alpha: float = 0.0  # cv2.stereoRectify alpha: 0 = only valid pixels
+    min_depth_m: float = 0.2  # disparity bounds derived from these depths
+    max_depth_m: float = 40.0
+    stereo_row_tolerance_px: float = 2.0  # |vL - vR| allowed, times the octave scale
+    stereo_max_hamming: int = 80  # descriptor distance accepted for a stereo match
+    stereo_ratio: float = 0.9  # best / second-best descriptor distance (distinct candidates)
+    subpixel_half_window: int = 5  # SAD patch half size for sub-pixel disparity
+    subpixel_search_px: int = 5  # +- search range of the SAD refinement
+
+    # ---- temporal tracking (tracking.py) -------------------------------------------------
+    track_radius_px: float = 10.0  # projection search radius (times the octave scale)
+    track_max_hamming: int = 80
+    track_ratio: float = 0.9
+    min_tracked: int = 20  # fewer pose inliers than this: LOST
+    pnp_reprojection_px: float = 3.0  # solvePnPRansac inlier threshold
+    pnp_iterations: int = 200
+    pose_chi2_stereo: float = 7.815  # chi-square 95 % (3 dof) for stereo outliers, 1 px sigma
+    pose_chi2_mono: float = 5.991  # 2 dof
+    max_velocity_m_s: float = 10.0  # sanity bounds on the constant-velocity model
+    max_angular_velocity_rad_s: float = 10.0
+
+    # ---- map management --------------------------------------------------------------------
+    max_new_landmarks_per_keyframe: int = 400
+    max_landmarks: int = 4000  # local map size cap (oldest culled first)
+    landmark_max_unseen_frames: int = 40  # culled when not matched for this many frames
+    landmark_min_found_ratio: float = 0.25  # found / visible below this: culled
+    landmark_min_visible_for_ratio: int = 8  # ... once predicted visible this many times
+
+    # ---- keyframe decision -----------------------------------------------------------------
+    kf_max_interval_s: float = 0.5
+    kf_min_tracked_ratio: float = 0.75  # tracked / tracked in the reference keyframe
+    kf_min_tracked: int = 120  # fewer tracked landmarks than this: new keyframe
+    kf_parallax_px: float = 25.0  # median pixel shift of tracked features since last keyframe
+
+    # ---- degraded input --------------------------------------------------------------------
+    image_min_std: float = 3.0  # below: blank image
+    image_saturated_mean: float = 250.0  # above: saturated image
+    image_dark_mean: float = 3.0  # below: black image
+    reinit_after_lost_frames: int = 2  # consecutive LOST frames before re-creating the map
+
+    # ---- visual odometry local bundle adjustment (vo.py) -----------------------------------
+    ba_window_keyframes: int = 8  # keyframes optimised
+    ba_fixed_keyframes: int = 2  # older keyframes held fixed (gauge + context)
+    ba_pixel_sigma: float = 1.0
+    ba_huber_k: float = 1.345  # robust loss (Huber) threshold in sigmas
+    ba_max_iterations: int = 8
+
+    # ---- execution -------------------------------------------------------------------------
+    prefetch: bool = True  # decode+rectify+ORB of frame k+1 in a thread while k is tracked
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None, where: str = "frontend") -> FrontendConfig:
+        """Build from a mapping (YAML section). Unknown keys and wrong types are errors."""
+        if data is None:
+            return cls()
+        if not isinstance(data, dict):
+            raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        kwargs: dict[str, Any] = {}
+        for key, value in data.items():
+            if key not in fields:
+                raise ConfigError(f"{where}.{key}: unknown key (known: {', '.join(fields)})")
+            default = getattr(cls, key)
+            try:
+                if isinstance(default, bool):
+                    if not isinstance(value, bool):
+                        raise TypeError
+                    kwargs[key] = value
+                elif isinstance(default, int):
+                    if isinstance(value, bool) or int(value) != value:
+                        raise TypeError
+                    kwargs[key] = int(value)
+                else:
+                    if isinstance(value, bool):
+                        raise TypeError
+                    kwargs[key] = float(value)
+            except (TypeError, ValueError):
+                raise ConfigError(
+                    f"{where}.{key}: expected {type(default).__name__}, got {value!r}"
+                ) from None
+        cfg = cls(**kwargs)
+        cfg.validate(where)
+        return cfg
+
+    def validate(self, where: str = "frontend") -> None:
+        checks = [
+            ("n_features", self.n_features >= 50),
+            ("grid_cols", self.grid_cols >= 1),
+            ("grid_rows", self.grid_rows >= 1),
+            ("orb_scale_factor", 1.0 < self.orb_scale_factor <= 2.0),
+            ("orb_levels", 1 <= self.orb_levels <= 12),
+            ("min_depth_m", 0 < self.min_depth_m < self.max_depth_m),
+            ("stereo_ratio", 0 < self.stereo_ratio <= 1),
+            ("track_ratio", 0 < self.track_ratio <= 1),
+            ("min_tracked", self.min_tracked >= 6),
+            ("ba_window_keyframes", self.ba_window_keyframes >= 2),
+            ("ba_fixed_keyframes", self.ba_fixed_keyframes >= 1),
+            ("subpixel_half_window", self.subpixel_half_window >= 1),
+            ("subpixel_search_px", self.subpixel_search_px >= 1),
+        ]
+        for key, ok in checks:
+            if not ok:
+                raise ConfigError(f"{where}.{key}: value {getattr(self, key)!r} out of range")

@@ -1,0 +1,105 @@
+"""Grid-bucketed ORB features.
+
+ORB alone clusters its keypoints on the most textured patch of the image. Here ORB detects a
+surplus of candidates (low FAST threshold), then a grid keeps them round-robin by response:
+every cell's best keypoint first, then every cell's second best, and so on until `n_features`.
+Descriptors are computed only for the kept keypoints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from eurocslam.dataset.types import U8
+from eurocslam.frontend.config import FrontendConfig
+from eurocslam.geometry import F64
+
+# popcount of every byte value, for vectorised Hamming distances
+POPCOUNT8 = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
+
+
+@dataclass(frozen=True)
+class Features:
+    """Keypoints of one image: pixel positions, pyramid octave, response, 32-byte descriptors."""
+
+    uv: F64  # (N, 2) pixels (x, y)
+    octave: NDArray[np.int32]  # (N,)
+    response: F64  # (N,)
+    desc: NDArray[np.uint8]  # (N, 32)
+
+    def __len__(self) -> int:
+        return int(self.uv.shape[0])
+
+    @staticmethod
+    def empty() -> Features:
+        return Features(
+            np.zeros((0, 2)), np.zeros(0, np.int32), np.zeros(0), np.zeros((0, 32), np.uint8)
+        )
+
+
+def hamming(a: NDArray[np.uint8], b: NDArray[np.uint8]) -> NDArray[np.int32]:
+    """Element-wise Hamming distances between descriptor arrays (..., 32) of equal shape."""
+    return POPCOUNT8[np.bitwise_xor(a, b)].sum(axis=-1, dtype=np.int32)
+
+
+def bucket_select(
+    uv: F64, response: F64, n: int, width: int, height: int, cols: int, rows: int
+) -> NDArray[np.intp]:
+    """Indices of at most `n` keypoints spread over a cols x rows grid, strongest first per cell."""
+    if uv.shape[0] <= n:
+        return np.argsort(-response, kind="stable")
+    cx = np.clip((uv[:, 0] * cols / width).astype(np.int64), 0, cols - 1)
+    cy = np.clip((uv[:, 1] * rows / height).astype(np.int64), 0, rows - 1)
+    cell = cy * cols + cx
+    # sort by cell, then by descending response; rank inside the cell
+    order = np.lexsort((-response, cell))
+    cell_sorted = cell[order]
+    first = np.searchsorted(cell_sorted, cell_sorted, side="left")
+    rank = np.arange(order.size) - first
+    # round-robin: rank 0 of every cell (strongest first), then rank 1, ...
+    pick = np.lexsort((-response[order], rank))
+    return order[pick[:n]]
+
+
+class OrbExtractor:
+    """Grid-bucketed ORB. One instance per thread (cv2.ORB objects are not shared)."""
+
+    def __init__(self, config: FrontendConfig, width: int, height: int) -> None:
+        self.config = config
+        self.width = width
+        self.height = height
+        n_cand = max(config.n_features, int(config.n_features * config.orb_candidates_factor))
+        self._orb = cv2.ORB_create(
+            nfeatures=n_cand,
+            scaleFactor=config.orb_scale_factor,
+            nlevels=config.orb_levels,
+            edgeThreshold=19,
+            patchSize=31,
+            fastThreshold=config.fast_threshold,
+        )
+        self.scale_factors = config.orb_scale_factor ** np.arange(config.orb_levels)
+
+    def extract(self, img: U8) -> Features:
+        c = self.config
+        kps = self._orb.detect(img, None)
+        if not kps:
+            return Features.empty()
+        uv = np.array([k.pt for k in kps], dtype=np.float64)
+        resp = np.array([k.response for k in kps], dtype=np.float64)
+        keep = bucket_select(
+            uv, resp, c.n_features, self.width, self.height, c.grid_cols, c.grid_rows
+        )
+        kept = [kps[i] for i in keep]
+        kept, desc = self._orb.compute(img, kept)
+        if desc is None or not kept:
+            return Features.empty()
+        return Features(
+            uv=np.array([k.pt for k in kept], dtype=np.float64).reshape(-1, 2),
+            octave=np.array([k.octave for k in kept], dtype=np.int32),
+            response=np.array([k.response for k in kept], dtype=np.float64),
+            desc=np.ascontiguousarray(desc, dtype=np.uint8),
+        )
