@@ -4,7 +4,11 @@ Streams images lazily (memory does not grow with sequence length). Stereo pairs 
 timestamp, never on position. Listed-but-missing images, unreadable PNGs and frames present in
 one camera only are skipped and counted in `skips` (reported once by the caller).
 Malformed CSV rows raise `DatasetError` naming the file and line; a truncated *last* row (an
-interrupted copy) is skipped and counted.
+interrupted copy) is skipped and counted. Also tolerated and counted: out-of-order and duplicate
+timestamps (sorted, first kept), IMU gaps, empty optional files, 16-bit or colour PNGs (converted
+to 8-bit mono), images whose size differs from the calibration (skipped). Text files may carry a
+UTF-8 byte-order mark, CRLF line endings and blank lines. Streams whose timestamps differ by
+orders of magnitude (seconds vs nanoseconds) are refused.
 """
 
 from __future__ import annotations
@@ -18,13 +22,13 @@ import numpy as np
 
 from eurocslam.dataset.calib import StereoRig, load_rig
 from eurocslam.dataset.types import (
-    GroundTruth,
     I64,
+    U8,
+    GroundTruth,
     ImuData,
     PositionData,
     SkipReport,
     StereoFrame,
-    U8,
 )
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import normalize_quat
@@ -56,6 +60,25 @@ class CsvTable:
     line_numbers: np.ndarray  # 1-based line number of each row in the file
 
 
+def read_text_file(path: Path) -> str:
+    """Read a CSV as text (UTF-8, BOM tolerated); errors name the file."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise DatasetError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise DatasetError(f"{path}: is a folder, expected a file") from None
+    except OSError as e:
+        raise DatasetError(f"{path}: cannot read: {e.strerror or e}") from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = raw[: e.start].count(b"\n") + 1
+        raise DatasetError(
+            f"{path}:{line}: not a text file (byte {e.start} is not UTF-8)"
+        ) from None
+
+
 def _looks_like_seconds(tok: str) -> bool:
     try:
         v = float(tok)
@@ -69,12 +92,7 @@ def read_numeric_csv(path: Path, ncols: int, skips: SkipReport | None = None) ->
 
     Comment/header lines start with '#'. Errors name the file and line.
     """
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{path}: cannot read: {e}") from None
+    text = read_text_file(path)
     lines = text.splitlines()
     data_lines = [
         (i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")
@@ -113,12 +131,7 @@ def read_numeric_csv(path: Path, ncols: int, skips: SkipReport | None = None) ->
 
 def read_image_csv(path: Path, skips: SkipReport | None = None) -> tuple[I64, list[str], I64]:
     """Read cam*/data.csv: (timestamps, filenames, line numbers)."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"{path}: cannot read: {e}") from None
+    text = read_text_file(path)
     ts: list[int] = []
     names: list[str] = []
     nos: list[int] = []
@@ -147,9 +160,7 @@ def read_image_csv(path: Path, skips: SkipReport | None = None) -> tuple[I64, li
     return np.array(ts, dtype=np.int64), names, np.array(nos, dtype=np.int64)
 
 
-def _sorted_unique(
-    t: I64, what: str, path: Path, skips: SkipReport
-) -> np.ndarray:
+def _sorted_unique(t: I64, what: str, path: Path, skips: SkipReport) -> np.ndarray:
     """Indices that sort `t` and drop duplicate timestamps (counted)."""
     if t.size and np.any(np.diff(t) < 0):
         skips.add("out-of-order timestamps (sorted)", str(path))
@@ -162,16 +173,54 @@ def _sorted_unique(
     return order[keep]
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+@dataclass(frozen=True)
+class DecodedImage:
+    """An image decoded to 8-bit mono. `image` is None when unreadable and `problem` says why;
+    `converted` names a conversion that was applied (e.g. "16-bit to 8-bit")."""
+
+    image: U8 | None
+    problem: str | None = None
+    converted: str | None = None
+
+
+def decode_image_bytes(data: bytes) -> DecodedImage:
+    """Decode image bytes to 8-bit mono. Empty and truncated PNGs are refused before decoding
+    (libpng would print to stderr); 16-bit images keep their high byte, colour becomes grey."""
+    if not data:
+        return DecodedImage(None, "empty file")
+    if data.startswith(PNG_SIGNATURE) and b"IEND" not in data[-12:]:
+        return DecodedImage(None, "truncated PNG (no IEND chunk at the end)")
+    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        return DecodedImage(None, "not a decodable image")
+    notes = []
+    if img.ndim == 3:
+        code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        img = cv2.cvtColor(img, code)
+        notes.append("colour to mono")
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)
+        notes.append("16-bit to 8-bit")
+    elif img.dtype != np.uint8:
+        return DecodedImage(None, f"unsupported pixel type {img.dtype}")
+    return DecodedImage(np.ascontiguousarray(img), None, ", ".join(notes) or None)
+
+
+def decode_image(path: Path) -> DecodedImage:
+    """Read and decode one image file (see `decode_image_bytes`)."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as e:
+        return DecodedImage(None, f"cannot read: {e.strerror or e}")
+    return decode_image_bytes(data)
+
+
 def read_image(path: Path) -> U8 | None:
     """Decode an 8-bit mono image; None if it is unreadable (caller counts the skip)."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return None
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-    if img.dtype != np.uint8:
-        img = (img / 256).astype(np.uint8) if img.dtype == np.uint16 else img.astype(np.uint8)
-    return img
+    return decode_image(path).image
 
 
 @dataclass(frozen=True)
@@ -196,6 +245,7 @@ class AslSequence:
         self.groundtruth = self._read_groundtruth()
         self.leica = self._read_leica()
         self.entries = self._join_cameras()
+        self._check_time_units()
 
     # ---- tables -----------------------------------------------------------------------------
     def _read_imu(self) -> ImuData:
@@ -205,13 +255,25 @@ class AslSequence:
             raise DatasetError(f"{path}: no IMU rows")
         idx = _sorted_unique(tab.t_ns, "IMU", path, self.skips)
         v = tab.values[idx]
-        return ImuData(tab.t_ns[idx], np.ascontiguousarray(v[:, 0:3]), np.ascontiguousarray(v[:, 3:6]))
+        t = tab.t_ns[idx]
+        if self.rig.imu.rate_hz > 0 and t.size > 1:
+            period_ns = 1e9 / self.rig.imu.rate_hz
+            dt = np.diff(t)
+            for i in np.nonzero(dt > 1.5 * period_ns)[0].tolist():
+                self.skips.add(
+                    "imu0 gap > 1.5 sample periods",
+                    f"{path}:{int(tab.line_numbers[idx][i + 1])} ({dt[i] / 1e6:.1f} ms)",
+                )
+        return ImuData(t, np.ascontiguousarray(v[:, 0:3]), np.ascontiguousarray(v[:, 3:6]))
 
     def _read_groundtruth(self) -> GroundTruth | None:
         path = self.mav0 / "state_groundtruth_estimate0" / "data.csv"
         if not path.exists():
             return None
         tab = read_numeric_csv(path, 17, self.skips)
+        if tab.t_ns.size == 0:
+            self.skips.add("empty ground-truth file (ignored)", str(path))
+            return None
         idx = _sorted_unique(tab.t_ns, "ground-truth", path, self.skips)
         v = tab.values[idx]
         try:
@@ -220,8 +282,12 @@ class AslSequence:
             bad = int(np.argmin(np.linalg.norm(v[:, 3:7], axis=1)))
             raise DatasetError(f"{path}:{tab.line_numbers[idx][bad]}: zero quaternion") from None
         return GroundTruth(
-            t_ns=tab.t_ns[idx], p=v[:, 0:3].copy(), q_wxyz=q, v=v[:, 7:10].copy(),
-            bg=v[:, 10:13].copy(), ba=v[:, 13:16].copy(),
+            t_ns=tab.t_ns[idx],
+            p=v[:, 0:3].copy(),
+            q_wxyz=q,
+            v=v[:, 7:10].copy(),
+            bg=v[:, 10:13].copy(),
+            ba=v[:, 13:16].copy(),
         )
 
     def _read_leica(self) -> PositionData | None:
@@ -229,16 +295,30 @@ class AslSequence:
         if not path.exists():
             return None
         tab = read_numeric_csv(path, 4, self.skips)
+        if tab.t_ns.size == 0:
+            self.skips.add("empty leica0 file (ignored)", str(path))
+            return None
         idx = _sorted_unique(tab.t_ns, "leica0", path, self.skips)
         return PositionData(tab.t_ns[idx], tab.values[idx].copy())
 
     def _camera(self, cam: str) -> dict[int, Path | None]:
         path = self.mav0 / cam / "data.csv"
         t, names, _ = read_image_csv(path, self.skips)
+        if t.size == 0:
+            raise DatasetError(f"{path}: no image rows")
+        if t.size > 1 and np.any(np.diff(t) < 0):
+            self.skips.add("out-of-order timestamps (sorted)", str(path))
         folder = self.mav0 / cam / "data"
-        present = {p.name for p in folder.iterdir()} if folder.is_dir() else set()
+        if not folder.is_dir():
+            raise DatasetError(f"{folder}: image folder not found")
+        try:
+            present = {p.name for p in folder.iterdir()}
+        except OSError as e:
+            raise DatasetError(f"{folder}: cannot list: {e.strerror or e}") from None
+        if not present.intersection(names):
+            raise DatasetError(f"{folder}: none of the {len(names)} images listed in {path} exist")
         out: dict[int, Path | None] = {}
-        for ti, name in zip(t.tolist(), names):
+        for ti, name in zip(t.tolist(), names, strict=True):
             if ti in out:
                 self.skips.add(f"duplicate {cam} timestamp (dropped)", f"{path}: {ti}")
                 continue
@@ -261,6 +341,30 @@ class AslSequence:
                 self.skips.add("frame in cam0 only", str(t))
             entries.append(FrameEntry(t, left, right))
         return entries
+
+    def _check_time_units(self) -> None:
+        """Refuse streams whose timestamps differ by orders of magnitude (s vs ns mix-ups)."""
+        streams: dict[Path, I64] = {
+            self.mav0 / "imu0" / "data.csv": self.imu.t_ns,
+            self.mav0 / "cam0" / "data.csv": self.frame_times,
+        }
+        if self.groundtruth is not None:
+            streams[self.mav0 / "state_groundtruth_estimate0" / "data.csv"] = self.groundtruth.t_ns
+        if self.leica is not None:
+            streams[self.mav0 / "leica0" / "data.csv"] = self.leica.t_ns
+        mags = {
+            p: float(np.log10(max(abs(float(np.median(t))), 1.0)))
+            for p, t in streams.items()
+            if t.size
+        }
+        ref_path = self.mav0 / "imu0" / "data.csv"
+        ref = mags[ref_path]
+        for p, m in mags.items():
+            if abs(m - ref) > 2.0:
+                raise DatasetError(
+                    f"{p}: timestamps are ~1e{m:.0f} but {ref_path} has ~1e{ref:.0f}: seconds vs "
+                    "nanoseconds mix-up? EuRoC timestamps are integer nanoseconds"
+                )
 
     # ---- streams ----------------------------------------------------------------------------
     @property
@@ -296,20 +400,30 @@ class AslSequence:
                 continue
             if t_end_ns is not None and e.t_ns > t_end_ns:
                 break
-            left = self._load(e.left)
-            right = self._load(e.right)
-            if left is None or right is None:
-                if not include_incomplete:
-                    continue
+            left = self._load(e.left, "cam0")
+            right = self._load(e.right, "cam1")
+            if (left is None or right is None) and not include_incomplete:
+                continue
             yield StereoFrame(e.t_ns, left, right, e.left, e.right)
 
-    def _load(self, path: Path | None) -> U8 | None:
+    def _load(self, path: Path | None, cam: str) -> U8 | None:
         if path is None:
             return None
-        img = read_image(path)
-        if img is None:
-            self.skips.add("unreadable image", str(path))
-        return img
+        dec = decode_image(path)
+        if dec.image is None:
+            self.skips.add("unreadable image", f"{path}: {dec.problem}")
+            return None
+        calib = self.rig.cam0 if cam == "cam0" else self.rig.cam1
+        h, w = dec.image.shape[:2]
+        if (w, h) != (calib.width, calib.height):
+            self.skips.add(
+                f"{cam} image size differs from calibration (skipped)",
+                f"{path}: {w}x{h}, sensor.yaml says {calib.width}x{calib.height}",
+            )
+            return None
+        if dec.converted:
+            self.skips.add(f"{cam} image converted ({dec.converted})", str(path))
+        return dec.image
 
 
 def open_sequence(path: Path | str, rig: StereoRig | None = None) -> AslSequence:
