@@ -441,9 +441,14 @@ def check_imu(imu: ImuCalib) -> list[CalibIssue]:
 
 def check_stereo(rig: StereoRig) -> list[CalibIssue]:
     """Baseline, parallel optical axes, cam1 to the right of cam0, equal resolutions."""
+    return check_stereo_pair(rig.cam0, rig.cam1)
+
+
+def check_stereo_pair(cam0: CameraCalib, cam1: CameraCalib) -> list[CalibIssue]:
+    """`check_stereo` for two cameras without an IMU."""
     out: list[CalibIssue] = []
-    T = rig.T_cam1_cam0
-    b = rig.baseline
+    T = inv_T(cam1.T_body_cam) @ cam0.T_body_cam  # T_cam1_cam0
+    b = float(np.linalg.norm(T[:3, 3]))
     if b < 1e-3:
         out.append(
             CalibIssue(
@@ -487,13 +492,12 @@ def check_stereo(rig: StereoRig) -> list[CalibIssue]:
                 "cam1 is left of cam0 (EuRoC's cam1 is the right camera): are the folders swapped?",
             )
         )
-    if rig.cam0.resolution != rig.cam1.resolution:
+    if cam0.resolution != cam1.resolution:
         out.append(
             CalibIssue(
                 "warning",
                 "resolution",
-                f"cam0 is {rig.cam0.width}x{rig.cam0.height}, "
-                f"cam1 is {rig.cam1.width}x{rig.cam1.height}",
+                f"cam0 is {cam0.width}x{cam0.height}, cam1 is {cam1.width}x{cam1.height}",
             )
         )
     return out
