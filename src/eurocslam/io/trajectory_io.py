@@ -2,7 +2,7 @@
 
 `Trajectory` holds poses of the body frame in some world frame (`T_world_body`):
 
-* `t_ns`: int64 nanoseconds, strictly increasing within each segment;
+* `t_ns`: int64 nanoseconds, non-decreasing within each segment (repeats are kept, as evo does);
 * `p`: (N, 3) positions in metres;
 * `q_wxyz`: (N, 4) unit quaternions, w first (converted to/from x-first only via `geometry`);
 * `segment`: optional (N,) int64 segment id per pose. A SLAM run that resets starts a new
@@ -413,15 +413,15 @@ def read_trajectory(
     if bad.size:
         raise EvalError(f"{path}:{lineno[bad[0]]}: zero-norm quaternion")
     q = q_raw / qn[:, None]
-    # timestamps must increase within each segment
+    # timestamps must not go backwards within a segment; repeated stamps are kept (evo keeps
+    # them too; `count_repeated_stamps` lets callers warn)
     for sid in np.unique(seg):
         idx = np.flatnonzero(seg == sid)
         d = np.diff(t[idx])
-        if np.any(d <= 0):
-            k = idx[int(np.argmax(d <= 0)) + 1]
-            what = "repeats" if t[k] == t[idx[np.searchsorted(idx, k) - 1]] else "goes backwards"
+        if np.any(d < 0):
+            k = idx[int(np.argmax(d < 0)) + 1]
             raise EvalError(
-                f"{path}:{lineno[k]}: timestamp {what} (must increase within a segment)"
+                f"{path}:{lineno[k]}: timestamp goes backwards (must not decrease within a segment)"
             )
     return Trajectory(
         t,
@@ -430,6 +430,14 @@ def read_trajectory(
         seg if saw_segment else None,
         name if name is not None else path.name,
     )
+
+
+def count_repeated_stamps(traj: Trajectory) -> int:
+    """Number of poses whose timestamp equals the previous pose's in the same segment."""
+    n = 0
+    for _, seg in traj.segments():
+        n += int(np.count_nonzero(np.diff(seg.t_ns) == 0))
+    return n
 
 
 def read_tum(path: Path | str, time_unit: TimeUnit = "auto") -> Trajectory:
