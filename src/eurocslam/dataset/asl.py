@@ -91,6 +91,22 @@ def _looks_like_seconds(tok: str) -> bool:
     return "." in tok or "e" in tok.lower() or v < 1e12
 
 
+def parse_numeric_rows(rows: list[str], ncols: int) -> tuple[I64, np.ndarray] | None:
+    """Fast path: parse well-formed rows (exactly `ncols` comma-separated numbers, an integer
+    timestamp first, finite values) in C. Returns None when any row is not like that; the caller
+    then parses row by row to name the line at fault. Timestamps are parsed as int64, exactly."""
+    if not rows or any(r.count(",") != ncols - 1 for r in rows):
+        return None
+    try:
+        t = np.loadtxt(rows, delimiter=",", dtype=np.int64, usecols=0, ndmin=1)
+        v = np.loadtxt(rows, delimiter=",", dtype=np.float64, usecols=range(1, ncols), ndmin=2)
+    except ValueError:
+        return None
+    if t.shape[0] != len(rows) or v.shape != (len(rows), ncols - 1) or not np.isfinite(v).all():
+        return None
+    return t, v
+
+
 def read_numeric_csv(path: Path, ncols: int, skips: SkipReport | None = None) -> CsvTable:
     """Read an ASL CSV with `ncols` columns: timestamp [ns] (integer) then floats.
 
@@ -101,6 +117,10 @@ def read_numeric_csv(path: Path, ncols: int, skips: SkipReport | None = None) ->
     data_lines = [
         (i + 1, ln) for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith("#")
     ]
+    fast = parse_numeric_rows([ln for _, ln in data_lines], ncols)
+    if fast is not None:
+        nos = np.array([no for no, _ in data_lines], dtype=np.int64)
+        return CsvTable(path, fast[0], fast[1], nos)
     t = np.empty(len(data_lines), dtype=np.int64)
     vals = np.empty((len(data_lines), ncols - 1), dtype=np.float64)
     lineno = np.empty(len(data_lines), dtype=np.int64)

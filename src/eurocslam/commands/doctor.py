@@ -1,0 +1,55 @@
+"""`eurocslam doctor SEQUENCE`: check an EuRoC ASL folder; exit 0 ok, 1 warnings, 2 errors."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+NAME = "doctor"
+HELP = "check an EuRoC sequence folder (files, CSVs, timestamps, images, calibration)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("sequence", help="sequence folder (containing mav0/) or its mav0/ folder")
+    parser.add_argument(
+        "--full",
+        action="store_true",
+        help="decode every image (default: read every PNG header, decode a sample)",
+    )
+    parser.add_argument(
+        "--sample",
+        type=int,
+        default=24,
+        metavar="N",
+        help="images per camera to decode fully when not --full (default 24)",
+    )
+    parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    parser.epilog = (
+        "Exit codes: 0 no problem, 1 warnings only, 2 errors. Each finding names the file, "
+        "line and key."
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from eurocslam.dataset.doctor import diagnose
+    from eurocslam.progress import bar
+
+    if args.sample < 0:
+        print("eurocslam doctor: error: --sample must be >= 0", file=sys.stderr)
+        return 2
+    pbar = bar(total=None, desc="decoding images", unit="img", enabled=None if args.full else False)
+    try:
+        report = diagnose(
+            args.sequence,
+            full=args.full,
+            sample=args.sample,
+            progress=lambda n, cam: pbar.update(n),
+        )
+    finally:
+        pbar.close()
+    if args.json:
+        print(json.dumps(report.to_dict(), indent=2))
+    else:
+        print(report.format_text())
+    return report.exit_code
