@@ -1,9 +1,12 @@
 """The Asctec Firefly hexacopter (the EuRoC MAV) as a `visualization_msgs/MarkerArray`.
 
 Made from primitives, so nothing is fetched from the network and no mesh is shipped: a body,
-six arms, six motors with translucent rotor discs and two-bladed propellers that spin, and the
-VI-Sensor box at the front. Dimensions follow the Firefly model of rotors_simulator
-(arm length 0.215 m, rotor radius 0.10 m, rotors at 30 + 60k degrees).
+six arms (the two front ones red), six motors with translucent rotor discs and two-bladed
+propellers that spin, and the VI-Sensor box at the front: seven markers (body, canopy and sensor
+box as primitives; arms, motors, rotor discs and propellers as one LINE_LIST, SPHERE_LIST,
+TRIANGLE_LIST and LINE_LIST each), so one message is small (~8 KB) and quick to build (~1 ms).
+Dimensions follow the Firefly model of rotors_simulator (arm length 0.215 m, rotor radius
+0.10 m, rotors at 30 + 60k degrees).
 
 Every marker is in the body frame (`frame_id`) with `frame_locked = True`, so Foxglove moves the
 drone with the tf of that frame; publish it once per frame (or per pose) and it follows the
@@ -16,7 +19,7 @@ degrees. The model is built in a level forward-left-up frame (`drone`) and place
 `T_BODY_DRONE`: centre 0.10 m behind and 0.07 m above the IMU, because the VI-Sensor hangs at the
 front of the Firefly, below the arms.
 
-The rotors spin like the tutorial's joint-state publisher: each propeller's yaw about its motor
+The rotors spin like the tutorial's joint-state publisher: each propeller's angle about its motor
 axis is `direction * 2 pi * spin_hz * t`, alternating direction from rotor to rotor. `spin_hz`
 defaults to 2.5 revolutions/s (45 degrees per 20 Hz camera frame), slow enough not to alias.
 """
@@ -26,19 +29,22 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Any
 
 import numpy as np
 
-from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz, rot_z, wxyz_to_xyzw
+from eurocslam.geometry import F64, make_T
+from eurocslam.io import ros2
 
 # visualization_msgs/Marker constants
 CUBE = 1
 SPHERE = 2
 CYLINDER = 3
+LINE_LIST = 5
+SPHERE_LIST = 7
+TRIANGLE_LIST = 11
 ADD = 0
 
-MSGTYPE = "visualization_msgs/msg/MarkerArray"
+MSGTYPE = ros2.MARKER_ARRAY
 
 ARM_LENGTH = 0.215  # m, motor axis to body centre
 ROTOR_RADIUS = 0.10  # m
@@ -69,31 +75,60 @@ _SENSOR: Rgba = (0.55, 0.55, 0.6, 1.0)
 
 @dataclass(frozen=True)
 class Part:
-    """One primitive of the model, posed in the `drone` frame (forward-left-up)."""
+    """One marker of the model, posed in the `drone` frame (forward-left-up). List markers
+    (LINE_LIST, SPHERE_LIST, TRIANGLE_LIST) carry their `points` (N, 3) in the part frame and
+    optionally per-point `colors` (N, 4)."""
 
     name: str
-    type: int  # CUBE / SPHERE / CYLINDER
+    type: int
     T_drone_part: F64  # 4x4
     scale: tuple[float, float, float]
     color: Rgba
+    points: F64 | None = None
+    colors: F64 | None = None
 
 
-def _shade(color: Rgba, alpha: float | None = None) -> Rgba:
+def _shade(color: Rgba, alpha: float) -> Rgba:
     r, g, b, a = color
-    return (r, g, b, a if alpha is None else alpha * a)
+    return (r, g, b, alpha * a)
 
 
 def rotor_angle(t_ns: int, index: int, spin_hz: float = DEFAULT_SPIN_HZ) -> float:
     """Propeller yaw [rad] about its motor axis at time `t_ns`, in [0, 2 pi)."""
-    # integer-exact phase: (t_ns * spin_hz) mod 1e9, so huge epoch timestamps keep full precision
+    # whole seconds and nanoseconds apart, so epoch timestamps (~1.4e18 ns) keep full precision
     turns = (int(t_ns) % 10**9) * spin_hz / 1e9 + (int(t_ns) // 10**9) * spin_hz
     return (ROTOR_DIRECTIONS[index] * 2.0 * math.pi * (turns % 1.0)) % (2.0 * math.pi)
 
 
+def hub(i: int) -> F64:
+    """Centre of rotor `i`'s propeller in the drone frame."""
+    yaw = math.radians(ROTOR_ANGLES_DEG[i])
+    return np.array([ARM_LENGTH * math.cos(yaw), ARM_LENGTH * math.sin(yaw), ROTOR_HEIGHT])
+
+
+def _disc_triangles(n_seg: int = 12) -> F64:
+    """Triangle fans (6 * n_seg triangles, points (6 * n_seg * 3, 3)) of the rotor discs."""
+    a = np.linspace(0.0, 2.0 * math.pi, n_seg + 1)
+    rim = ROTOR_RADIUS * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
+    tris = []
+    for i in range(len(ROTOR_ANGLES_DEG)):
+        c = hub(i)
+        for k in range(n_seg):
+            tris += [c, c + rim[k], c + rim[k + 1]]
+    return np.array(tris)
+
+
 def _static_parts(color: Rgba) -> list[Part]:
     eye = np.eye(3)
-    parts = [
-        Part("body", CYLINDER, make_T(eye, np.zeros(3)), (0.17, 0.17, 0.055), color),
+    ident = np.eye(4)
+    arm_pts, arm_cols = [], []
+    for i, deg in enumerate(ROTOR_ANGLES_DEG):
+        tip = hub(i) * np.array([1.0, 1.0, 0.0])
+        arm_pts += [np.zeros(3), tip]
+        arm_cols += [_FRONT if deg in (30.0, 330.0) else _DARK] * 2
+    motors = np.array([hub(i) - [0.0, 0.0, ROTOR_HEIGHT / 2.0] for i in range(6)])
+    return [
+        Part("body", CYLINDER, ident, (0.17, 0.17, 0.055), color),
         Part("canopy", SPHERE, make_T(eye, np.array([0.0, 0.0, 0.03])), (0.11, 0.11, 0.06), _DARK),
         Part(
             "vi_sensor",
@@ -102,120 +137,90 @@ def _static_parts(color: Rgba) -> list[Part]:
             (0.05, 0.13, 0.05),
             _SENSOR,
         ),
+        # LINE_LIST: scale.x is the line width
+        Part(
+            "arms",
+            LINE_LIST,
+            ident,
+            (0.022, 0.0, 0.0),
+            (1.0, 1.0, 1.0, 1.0),
+            points=np.array(arm_pts),
+            colors=np.array(arm_cols),
+        ),
+        Part("motors", SPHERE_LIST, ident, (0.04, 0.04, 0.05), _DARK, points=motors),
+        Part(
+            "discs",
+            TRIANGLE_LIST,
+            ident,
+            (1.0, 1.0, 1.0),
+            _shade(color, 0.3),
+            points=_disc_triangles(),
+        ),
     ]
-    for i, deg in enumerate(ROTOR_ANGLES_DEG):
-        r_arm = rot_z(math.radians(deg))
-        axis = r_arm @ np.array([1.0, 0.0, 0.0])
-        front = deg in (30.0, 330.0)
-        parts.append(
-            Part(
-                f"arm{i}",
-                CUBE,
-                make_T(r_arm, axis * ARM_LENGTH / 2.0),
-                (ARM_LENGTH, 0.022, 0.016),
-                _FRONT if front else _DARK,
-            )
-        )
-        motor = axis * ARM_LENGTH
-        parts.append(
-            Part(
-                f"motor{i}",
-                CYLINDER,
-                make_T(eye, motor + np.array([0.0, 0.0, ROTOR_HEIGHT / 2.0])),
-                (0.03, 0.03, ROTOR_HEIGHT),
-                _DARK,
-            )
-        )
-        parts.append(
-            Part(
-                f"disc{i}",
-                CYLINDER,
-                make_T(eye, _hub(i)),
-                (2 * ROTOR_RADIUS, 2 * ROTOR_RADIUS, 0.003),
-                _shade(color, 0.3),
-            )
-        )
-    return parts
 
 
-def _hub(i: int) -> F64:
-    """Centre of rotor `i`'s propeller in the drone frame."""
-    yaw = math.radians(ROTOR_ANGLES_DEG[i])
-    return np.array([ARM_LENGTH * math.cos(yaw), ARM_LENGTH * math.sin(yaw), ROTOR_HEIGHT])
+def propeller_points(t_ns: int, spin_hz: float = DEFAULT_SPIN_HZ) -> F64:
+    """(12, 3) LINE_LIST end points of the six propellers at `t_ns`, in the drone frame."""
+    half = 0.95 * ROTOR_RADIUS
+    pts = np.empty((2 * len(ROTOR_ANGLES_DEG), 3))
+    for i in range(len(ROTOR_ANGLES_DEG)):
+        a = rotor_angle(t_ns, i, spin_hz)
+        d = half * np.array([math.cos(a), math.sin(a), 0.0])
+        pts[2 * i], pts[2 * i + 1] = hub(i) - d, hub(i) + d
+    return pts
 
 
 def firefly_parts(t_ns: int, color: Rgba, spin_hz: float = DEFAULT_SPIN_HZ) -> list[Part]:
-    """The model's primitives at time `t_ns` (only the propellers' angles depend on it)."""
-    props = [
-        Part(
-            f"prop{i}",
-            CUBE,
-            make_T(rot_z(rotor_angle(t_ns, i, spin_hz)), _hub(i)),
-            (2 * ROTOR_RADIUS * 0.95, 0.018, 0.004),
-            _DARK,
-        )
-        for i in range(len(ROTOR_ANGLES_DEG))
-    ]
-    return _static_parts(color) + props
-
-
-Posed = tuple[Part, tuple[float, float, float], tuple[float, float, float, float]]
-
-
-def _pose_in_body(parts: list[Part]) -> list[Posed]:
-    """Each part with its position and quaternion (xyzw) in the body frame."""
-    if not parts:
-        return []
-    T_body_part = T_BODY_DRONE @ np.stack([p.T_drone_part for p in parts])
-    q = wxyz_to_xyzw(rot_to_quat_wxyz(T_body_part[:, :3, :3]))
-    t = T_body_part[:, :3, 3]
-    return [
-        (
-            part,
-            (float(ti[0]), float(ti[1]), float(ti[2])),
-            (float(qi[0]), float(qi[1]), float(qi[2]), float(qi[3])),
-        )
-        for part, ti, qi in zip(parts, t, q, strict=True)
-    ]
+    """The model's markers at time `t_ns` (only the propellers depend on it)."""
+    props = Part(
+        "props",
+        LINE_LIST,
+        np.eye(4),
+        (0.018, 0.0, 0.0),
+        _DARK,
+        points=propeller_points(t_ns, spin_hz),
+    )
+    return [*_static_in_body(color)[0], props]
 
 
 @lru_cache(maxsize=16)
-def _static_posed(color: Rgba) -> list[Posed]:
-    return _pose_in_body(_static_parts(color))
+def _static_in_body(color: Rgba) -> tuple[list[Part], list[F64]]:
+    parts = _static_parts(color)
+    return parts, [T_BODY_DRONE @ p.T_drone_part for p in parts]
 
 
-def _stamp(t_ns: int) -> dict[str, int]:
-    return {"sec": int(t_ns) // 10**9, "nanosec": int(t_ns) % 10**9}
-
-
-def _marker(posed: Posed, mid: int, frame_id: str, t_ns: int, ns: str) -> dict[str, Any]:
-    part, (px, py, pz), (qx, qy, qz, qw) = posed
-    r, g, b, a = part.color
-    header = {"stamp": _stamp(t_ns), "frame_id": frame_id}
-    return {
-        "header": header,
-        "ns": ns,
-        "id": mid,
-        "type": part.type,
-        "action": ADD,
-        "pose": {
-            "position": {"x": px, "y": py, "z": pz},
-            "orientation": {"x": qx, "y": qy, "z": qz, "w": qw},
-        },
-        "scale": {"x": part.scale[0], "y": part.scale[1], "z": part.scale[2]},
-        "color": {"r": r, "g": g, "b": b, "a": a},
-        "lifetime": {"sec": 0, "nanosec": 0},
-        "frame_locked": True,
-        "points": [],
-        "colors": [],
-        "texture_resource": "",
-        "texture": {"header": header, "format": "", "data": b""},
-        "uv_coordinates": [],
-        "text": "",
-        "mesh_resource": "",
-        "mesh_file": {"filename": "", "data": b""},
-        "mesh_use_embedded_materials": False,
-    }
+def drone_marker_list(
+    frame_id: str,
+    t_ns: int,
+    color: Rgba = ESTIMATE_COLOR,
+    ns: str = "drone",
+    spin_hz: float = DEFAULT_SPIN_HZ,
+) -> list[ros2.Marker]:
+    """The Firefly's markers (ids 0..N-1 in `ns`), posed in the body frame `frame_id`."""
+    if not frame_id:
+        raise ValueError("drone_markers: frame_id must not be empty")
+    if len(color) != 4 or not all(0.0 <= c <= 1.0 for c in color):
+        raise ValueError(f"drone_markers: color must be 4 values in 0..1, got {color!r}")
+    rgba: Rgba = (float(color[0]), float(color[1]), float(color[2]), float(color[3]))
+    parts = firefly_parts(t_ns, rgba, spin_hz)
+    poses = [*_static_in_body(rgba)[1], T_BODY_DRONE]  # the propellers' points are in `drone`
+    return [
+        ros2.Marker(
+            t_ns=int(t_ns),
+            frame_id=frame_id,
+            ns=ns,
+            id=i,
+            type=part.type,
+            pose=T_body_part,
+            scale=part.scale,
+            color=part.color,
+            action=ADD,
+            frame_locked=True,
+            points=part.points,
+            colors=part.colors,
+        )
+        for i, (part, T_body_part) in enumerate(zip(parts, poses, strict=True))
+    ]
 
 
 def drone_markers(
@@ -224,19 +229,14 @@ def drone_markers(
     color: Rgba = ESTIMATE_COLOR,
     ns: str = "drone",
     spin_hz: float = DEFAULT_SPIN_HZ,
-) -> dict[str, Any]:
-    """A `visualization_msgs/msg/MarkerArray` (as a ROS-field dict) drawing the Firefly.
+) -> bytes:
+    """The Firefly as a CDR-encoded `visualization_msgs/msg/MarkerArray` (`MSGTYPE`), ready
+    for any sink: `sink.write(topic, drone.MSGTYPE, t_ns, drone_markers("body", t_ns))`.
 
     `frame_id`: the body frame the drone rides on (e.g. `body` for the estimate, the ground
-    truth's body frame for the ground truth). `color`: RGBA in 0..1 of the body and rotor discs.
-    `ns`: marker namespace; use different ones for the estimate and the ground truth so both
-    drones exist side by side. Marker ids are stable (0..N-1), so each call replaces the last.
+    truth's body frame for the ground truth). `color`: RGBA in 0..1 of the body and rotor discs
+    (`ESTIMATE_COLOR`, `GROUNDTRUTH_COLOR`). `ns`: marker namespace; use different ones for the
+    estimate and the ground truth so both drones exist side by side. Marker ids are stable, so
+    each message replaces the previous one; `frame_locked` makes it follow the tf of `frame_id`.
     """
-    if not frame_id:
-        raise ValueError("drone_markers: frame_id must not be empty")
-    if len(color) != 4 or not all(0.0 <= c <= 1.0 for c in color):
-        raise ValueError(f"drone_markers: color must be 4 values in 0..1, got {color!r}")
-    color = tuple(float(c) for c in color)  # type: ignore[assignment]
-    n_static = len(_static_posed(color))
-    posed = _static_posed(color) + _pose_in_body(firefly_parts(t_ns, color, spin_hz)[n_static:])
-    return {"markers": [_marker(p, i, frame_id, t_ns, ns) for i, p in enumerate(posed)]}
+    return ros2.marker_array(drone_marker_list(frame_id, t_ns, color, ns, spin_hz))
