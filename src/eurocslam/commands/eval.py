@@ -1,0 +1,176 @@
+"""`eurocslam eval`: ATE/RPE of an estimate against ground truth, with reports and plots."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+NAME = "eval"
+HELP = "ATE/RPE of an estimate (TUM, EuRoC CSV, run folder, MCAP) against ground truth"
+
+EPILOG = """\
+examples:
+  eurocslam eval OUT/ MH_01_easy/                  final and online trajectories of a run
+  eurocslam eval est.tum gt/data.csv --align posyaw --plot plots/ --json eval.json
+  eurocslam eval run.mcap                          /slam/pose against /groundtruth/pose
+  eurocslam eval bag.mcap gt.tum --topic /tf --child-frame base_link
+
+The headline is ATE translation RMSE after SE(3) Umeyama alignment over the whole trajectory.
+RPE: per frame (evo's delta 1 frame) and over 10..50 %% of the ground-truth path length (rpg).
+TUM time is seconds, EuRoC CSV time is nanoseconds; mix-ups are detected from the magnitudes.
+"""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.epilog = EPILOG
+    p.add_argument("estimate", type=Path, help="TUM / EuRoC CSV file, run output folder, or MCAP")
+    p.add_argument(
+        "groundtruth",
+        type=Path,
+        nargs="?",
+        help="EuRoC sequence folder, state_groundtruth_estimate0/data.csv, TUM, or MCAP "
+        "(default: /groundtruth/pose of the estimate's MCAP)",
+    )
+    p.add_argument("--topic", help="estimate topic in an MCAP (default /slam/pose)")
+    p.add_argument("--child-frame", help="child frame of the estimate when --topic is tf")
+    p.add_argument("--gt-topic", help="ground-truth topic in an MCAP (default /groundtruth/pose)")
+    p.add_argument("--gt-child-frame", help="child frame of the ground truth when it is tf")
+    p.add_argument(
+        "--which",
+        choices=("final", "online", "both"),
+        default="both",
+        help="for a run folder: final (smoothed), online (causal) or both (default)",
+    )
+    p.add_argument(
+        "--align",
+        choices=("se3", "sim3", "posyaw", "origin", "none"),
+        default="se3",
+        help="alignment: se3 Umeyama (default), sim3, posyaw (4-DoF), origin (first pose), none",
+    )
+    p.add_argument(
+        "--align-first",
+        type=int,
+        metavar="N",
+        help="fit the alignment on the first N matched poses only",
+    )
+    p.add_argument(
+        "--max-diff",
+        type=float,
+        default=0.01,
+        metavar="S",
+        help="max timestamp difference for association [s] (default 0.01, as evo)",
+    )
+    p.add_argument(
+        "--offset",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="time offset added to the estimate's stamps [s]",
+    )
+    p.add_argument(
+        "--delta", type=int, default=1, metavar="N", help="RPE delta in frames (default 1)"
+    )
+    p.add_argument(
+        "--rpe-fractions",
+        default="0.1,0.2,0.3,0.4,0.5",
+        metavar="F,..",
+        help="RPE sub-trajectory lengths as fractions of the GT path length",
+    )
+    p.add_argument(
+        "--rpe-lengths",
+        metavar="M,..",
+        help="RPE sub-trajectory lengths in metres (overrides --rpe-fractions)",
+    )
+    p.add_argument(
+        "--time-unit",
+        choices=("auto", "s", "ns"),
+        default="auto",
+        help="time unit of the estimate file (auto: TUM s, EuRoC CSV ns)",
+    )
+    p.add_argument(
+        "--gt-time-unit",
+        choices=("auto", "s", "ns"),
+        default="auto",
+        help="time unit of the ground-truth file",
+    )
+    p.add_argument("--json", type=Path, metavar="PATH", help="write the results as JSON")
+    p.add_argument("--md", type=Path, metavar="PATH", help="write the Markdown report")
+    p.add_argument("--plot", type=Path, metavar="DIR", help="write PNG plots into DIR")
+    p.add_argument("-q", "--quiet", action="store_true", help="do not print the report")
+
+
+def _floats(text: str, what: str) -> tuple[float, ...]:
+    from eurocslam.errors import EvalError
+
+    try:
+        vals = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise EvalError(f"{what}: expected comma-separated numbers, got '{text}'") from None
+    if not vals or any(v <= 0 for v in vals):
+        raise EvalError(f"{what}: values must be > 0, got '{text}'")
+    return vals
+
+
+def run(args: argparse.Namespace) -> int:
+    from eurocslam.errors import EvalError
+    from eurocslam.eval.evaluate import EvalConfig, evaluate
+    from eurocslam.eval.loaders import (
+        groundtruth_from_estimate_source,
+        load_estimates,
+        load_groundtruth,
+    )
+    from eurocslam.eval.report import markdown_report, to_json_dict, write_json, write_text
+
+    if args.max_diff < 0:
+        raise EvalError(f"--max-diff must be >= 0, got {args.max_diff}")
+    if args.delta < 1:
+        raise EvalError(f"--delta must be >= 1 frame, got {args.delta}")
+    if (
+        args.align_first is not None
+        and args.align_first < 3
+        and args.align not in ("origin", "none")
+    ):
+        raise EvalError(f"--align-first must be >= 3 for {args.align}, got {args.align_first}")
+    cfg = EvalConfig(
+        align=args.align,
+        align_first=args.align_first,
+        max_diff_s=args.max_diff,
+        offset_s=args.offset,
+        rpe_delta=args.delta,
+        rpe_fractions=_floats(args.rpe_fractions, "--rpe-fractions"),
+        rpe_lengths_m=_floats(args.rpe_lengths, "--rpe-lengths") if args.rpe_lengths else None,
+    )
+    estimates = load_estimates(
+        args.estimate, args.topic, args.child_frame, args.time_unit, args.which
+    )
+    gt_path = args.groundtruth or groundtruth_from_estimate_source(args.estimate)
+    if gt_path is None:
+        raise EvalError(
+            f"{args.estimate}: no ground truth given and none found in it (pass a sequence "
+            "folder, data.csv, TUM file or MCAP with /groundtruth/pose)"
+        )
+    gt = load_groundtruth(gt_path, args.gt_topic, args.gt_child_frame, args.gt_time_unit)
+    for note in [*gt.notes, *(n for e in estimates for n in e.notes)]:
+        print(f"eurocslam eval: note: {note}", file=sys.stderr)
+
+    results = [evaluate(gt.traj, e.traj, cfg, e.label) for e in estimates]
+    report = markdown_report(results)
+    if not args.quiet:
+        print(report)
+    if args.md:
+        write_text(args.md, report)
+    if args.json:
+        write_json(args.json, to_json_dict(results, {"groundtruth": gt.source}))
+    if args.plot:
+        from eurocslam.eval.plots import plot_result, prefix_for
+
+        written = []
+        for r in results:
+            written += plot_result(r, args.plot, prefix_for(r.label))
+        print(f"eurocslam eval: wrote {len(written)} plots to {args.plot}", file=sys.stderr)
+    for r in results:
+        for sid, why in r.skipped:
+            print(f"eurocslam eval: warning: segment {sid} skipped: {why}", file=sys.stderr)
+    return 0

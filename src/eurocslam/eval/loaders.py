@@ -1,0 +1,302 @@
+"""Load the inputs of `eval`: estimates and ground truth from files, folders and MCAPs.
+
+Estimate inputs:
+
+* a TUM or EuRoC CSV file (format detected from the content, `io.trajectory_io`);
+* a run output folder: `trajectory_final.tum` (smoothed, "final") and `trajectory_online.tum`
+  (causal, per frame, "online"); falls back to `run.mcap` `/slam/pose` when neither file exists;
+* an MCAP (detected from its magic bytes): a `geometry_msgs/PoseStamped`,
+  `PoseWithCovarianceStamped`, `nav_msgs/Odometry`, `nav_msgs/Path` (last message) or
+  `tf2_msgs/TFMessage` topic (`child_frame` picks the transform, as in `--child-frame`).
+
+Ground-truth inputs: an EuRoC sequence folder (`mav0/state_groundtruth_estimate0/data.csv`), that
+`data.csv`, a TUM file, or an MCAP topic (default `/groundtruth/pose`).
+
+Stamps come from `header.stamp` (not the MCAP log time).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eurocslam.errors import EvalError
+from eurocslam.io.trajectory_io import (
+    TimeUnit,
+    Trajectory,
+    count_repeated_stamps,
+    read_trajectory,
+)
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+DEFAULT_EST_TOPIC = "/slam/pose"
+DEFAULT_GT_TOPIC = "/groundtruth/pose"
+RUN_FINAL = "trajectory_final.tum"
+RUN_ONLINE = "trajectory_online.tum"
+RUN_MCAP = "run.mcap"
+
+POSE_TYPES = {
+    "geometry_msgs/msg/PoseStamped": "pose",
+    "geometry_msgs/PoseStamped": "pose",
+    "geometry_msgs/msg/PoseWithCovarianceStamped": "pose_cov",
+    "geometry_msgs/PoseWithCovarianceStamped": "pose_cov",
+    "nav_msgs/msg/Odometry": "odom",
+    "nav_msgs/Odometry": "odom",
+    "nav_msgs/msg/Path": "path",
+    "nav_msgs/Path": "path",
+    "tf2_msgs/msg/TFMessage": "tf",
+    "tf2_msgs/TFMessage": "tf",
+    "geometry_msgs/msg/TransformStamped": "tfs",
+    "geometry_msgs/TransformStamped": "tfs",
+}
+
+
+@dataclass(frozen=True)
+class Loaded:
+    """A trajectory with what it is: `label` says final/online/ground truth, `source` where."""
+
+    traj: Trajectory
+    label: str
+    source: str
+    notes: list[str] = field(default_factory=list)
+
+
+def is_mcap(path: Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(8) == MCAP_MAGIC
+    except OSError:
+        return False
+
+
+def _notes(traj: Trajectory) -> list[str]:
+    out = []
+    n = count_repeated_stamps(traj)
+    if n:
+        out.append(f"{traj.name}: {n} pose(s) repeat the previous timestamp (kept, as evo does)")
+    if len(traj) > 1 and np.all(np.abs(traj.q_wxyz[:, 0]) == 1.0):
+        out.append(
+            f"{traj.name}: every orientation is identity (position-only data such as leica0?); "
+            "rotation errors and RPE against it are not meaningful, ATE translation is"
+        )
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# MCAP
+
+
+def _stamp(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def _pose_row(pose: Any) -> list[float]:
+    p, q = pose.position, pose.orientation
+    return [p.x, p.y, p.z, q.w, q.x, q.y, q.z]
+
+
+def _tf_row(tf: Any) -> list[float]:
+    p, q = tf.translation, tf.rotation
+    return [p.x, p.y, p.z, q.w, q.x, q.y, q.z]
+
+
+def mcap_topics(path: Path) -> dict[str, str]:
+    """{topic: schema name} of an MCAP."""
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            summary = make_reader(f).get_summary()
+    except Exception as e:  # mcap raises several types for corrupt files
+        raise EvalError(f"{path}: cannot read MCAP: {e}") from None
+    if summary is None:
+        raise EvalError(f"{path}: MCAP has no summary (unfinished file?)")
+    return {
+        ch.topic: summary.schemas[ch.schema_id].name if ch.schema_id in summary.schemas else "?"
+        for ch in summary.channels.values()
+    }
+
+
+def read_mcap_trajectory(
+    path: Path | str,
+    topic: str,
+    child_frame: str | None = None,
+    name: str | None = None,
+) -> Trajectory:
+    """Poses of one topic of a ROS 2 MCAP, sorted by header stamp (repeats keep the last)."""
+    from mcap_ros2.reader import read_ros2_messages
+
+    path = Path(path)
+    topics = mcap_topics(path)
+    if topic not in topics:
+        usable = [f"{t} ({s})" for t, s in sorted(topics.items()) if s in POSE_TYPES]
+        raise EvalError(
+            f"{path}: no topic '{topic}'; pose topics in the file: "
+            + (", ".join(usable) if usable else "none")
+        )
+    kind = POSE_TYPES.get(topics[topic])
+    if kind is None:
+        raise EvalError(
+            f"{path}: topic '{topic}' is {topics[topic]}; expected PoseStamped, "
+            "PoseWithCovarianceStamped, Odometry, Path or TFMessage"
+        )
+    t: list[int] = []
+    rows: list[list[float]] = []
+    children: dict[str, int] = {}
+    try:
+        for m in read_ros2_messages(str(path), topics=[topic]):
+            msg = m.ros_msg
+            if kind == "pose":
+                t.append(_stamp(msg.header))
+                rows.append(_pose_row(msg.pose))
+            elif kind in ("pose_cov", "odom"):
+                t.append(_stamp(msg.header))
+                rows.append(_pose_row(msg.pose.pose))
+            elif kind == "path":
+                t = [_stamp(ps.header) for ps in msg.poses]
+                rows = [_pose_row(ps.pose) for ps in msg.poses]
+            else:
+                tfs = msg.transforms if kind == "tf" else [msg]
+                for tf in tfs:
+                    children[tf.child_frame_id] = children.get(tf.child_frame_id, 0) + 1
+                    if child_frame is None or tf.child_frame_id == child_frame:
+                        t.append(_stamp(tf.header))
+                        rows.append(_tf_row(tf.transform))
+    except EvalError:
+        raise
+    except Exception as e:
+        raise EvalError(f"{path}: cannot decode topic '{topic}': {e}") from None
+    if kind in ("tf", "tfs"):
+        if child_frame is None and len(children) > 1:
+            raise EvalError(
+                f"{path}: topic '{topic}' holds transforms to several child frames "
+                f"({', '.join(sorted(children))}); choose one with --child-frame"
+            )
+        if child_frame is not None and child_frame not in children:
+            raise EvalError(
+                f"{path}: topic '{topic}' has no transform with child frame '{child_frame}' "
+                f"(child frames: {', '.join(sorted(children)) or 'none'})"
+            )
+    if not t:
+        raise EvalError(f"{path}: topic '{topic}' has no messages")
+    t_ns = np.asarray(t, dtype=np.int64)
+    v = np.asarray(rows, dtype=np.float64)
+    if not np.all(np.isfinite(v)):
+        raise EvalError(f"{path}: topic '{topic}' holds non-finite poses")
+    if np.all(t_ns == 0):
+        raise EvalError(f"{path}: topic '{topic}' has zero header stamps")
+    order = np.argsort(t_ns, kind="stable")
+    t_ns, v = t_ns[order], v[order]
+    keep = np.concatenate([t_ns[1:] != t_ns[:-1], [True]])  # last of equal stamps
+    t_ns, v = t_ns[keep], v[keep]
+    qn = np.linalg.norm(v[:, 3:7], axis=1)
+    if np.any(qn < 1e-9):
+        raise EvalError(f"{path}: topic '{topic}' holds a zero-norm quaternion")
+    return Trajectory(
+        t_ns,
+        np.ascontiguousarray(v[:, :3]),
+        v[:, 3:7] / qn[:, None],
+        None,
+        name or f"{path.name}:{topic}",
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# inputs
+
+
+def load_estimates(
+    path: Path | str,
+    topic: str | None = None,
+    child_frame: str | None = None,
+    time_unit: TimeUnit = "auto",
+    which: str = "both",
+) -> list[Loaded]:
+    """Estimates to evaluate. A run folder yields final and/or online (`which`: final, online,
+    both); a file or MCAP yields one."""
+    path = Path(path)
+    if not path.exists():
+        raise EvalError(f"{path}: no such file or folder")
+    if path.is_dir():
+        out = []
+        final, online = path / RUN_FINAL, path / RUN_ONLINE
+        if which in ("final", "both") and final.exists():
+            t = read_trajectory(final, time_unit=time_unit, name=str(final))
+            out.append(Loaded(t, "final (smoothed)", str(final), _notes(t)))
+        if which in ("online", "both") and online.exists():
+            t = read_trajectory(online, time_unit=time_unit, name=str(online))
+            out.append(Loaded(t, "online (causal)", str(online), _notes(t)))
+        if not out and (path / RUN_MCAP).exists() and which != "final":
+            mc = path / RUN_MCAP
+            tp = topic or DEFAULT_EST_TOPIC
+            t = read_mcap_trajectory(mc, tp, child_frame, f"{mc}:{tp}")
+            out.append(Loaded(t, "online (causal, from run.mcap)", f"{mc}:{tp}"))
+        if not out:
+            wanted = {"final": RUN_FINAL, "online": RUN_ONLINE}.get(
+                which, f"{RUN_FINAL} or {RUN_ONLINE}"
+            )
+            raise EvalError(
+                f"{path}: not a run output folder with an estimate (expected {wanted}"
+                f"{'' if which == 'final' else ' or ' + RUN_MCAP})"
+            )
+        return out
+    if is_mcap(path):
+        tp = topic or DEFAULT_EST_TOPIC
+        t = read_mcap_trajectory(path, tp, child_frame, f"{path}:{tp}")
+        return [Loaded(t, "estimate", f"{path}:{tp}")]
+    t = read_trajectory(path, time_unit=time_unit, name=str(path))
+    return [Loaded(t, "estimate", str(path), _notes(t))]
+
+
+def groundtruth_csv_of(folder: Path) -> Path | None:
+    """`state_groundtruth_estimate0/data.csv` of an EuRoC sequence folder (or its mav0)."""
+    for cand in (
+        folder / "mav0" / "state_groundtruth_estimate0" / "data.csv",
+        folder / "state_groundtruth_estimate0" / "data.csv",
+        folder / "data.csv",
+    ):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def load_groundtruth(
+    path: Path | str,
+    topic: str | None = None,
+    child_frame: str | None = None,
+    time_unit: TimeUnit = "auto",
+) -> Loaded:
+    """The reference trajectory (see module docstring)."""
+    path = Path(path)
+    if not path.exists():
+        raise EvalError(f"{path}: no such file or folder")
+    if path.is_dir():
+        csv = groundtruth_csv_of(path)
+        if csv is None:
+            mc = path / RUN_MCAP
+            if mc.exists():
+                return load_groundtruth(mc, topic, child_frame, time_unit)
+            raise EvalError(
+                f"{path}: no ground truth in this folder (expected "
+                "mav0/state_groundtruth_estimate0/data.csv)"
+            )
+        path = csv
+    if is_mcap(path):
+        tp = topic or DEFAULT_GT_TOPIC
+        t = read_mcap_trajectory(path, tp, child_frame, f"{path}:{tp}")
+        return Loaded(t, "ground truth", f"{path}:{tp}")
+    t = read_trajectory(path, time_unit=time_unit, name=str(path))
+    return Loaded(t, "ground truth", str(path), _notes(t))
+
+
+def groundtruth_from_estimate_source(path: Path | str) -> Path | None:
+    """An MCAP beside/behind the estimate that carries `/groundtruth/pose` (for `eval RUN_DIR`
+    without a ground-truth argument)."""
+    path = Path(path)
+    mc = path / RUN_MCAP if path.is_dir() else path
+    if mc.is_file() and is_mcap(mc) and DEFAULT_GT_TOPIC in mcap_topics(mc):
+        return mc
+    return None

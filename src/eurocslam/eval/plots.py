@@ -1,0 +1,167 @@
+"""PNG plots of an evaluation (matplotlib, Agg backend, no display needed).
+
+`plot_result(result, out_dir, prefix)` writes four files and returns their paths:
+
+* `{prefix}_top.png`   top view (x-y) of the aligned estimate over the ground truth;
+* `{prefix}_error.png` ATE translation and rotation error over time (segments coloured);
+* `{prefix}_rpe.png`   RPE translation error box plots per sub-trajectory length (and in %);
+* `{prefix}_xyz.png`   x, y, z of ground truth and aligned estimate over time.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from eurocslam.errors import OutputError
+from eurocslam.eval.evaluate import EvalResult
+
+GT_COLOR = "0.35"
+SEG_COLORS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _t0(r: EvalResult) -> int:
+    return int(min(s.t_ns[0] for s in r.segments))
+
+
+def _save(fig, path: Path) -> Path:
+    try:
+        fig.savefig(path, dpi=110, bbox_inches="tight")
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write plot: {e}") from None
+    finally:
+        _plt().close(fig)
+    return path
+
+
+def plot_top(r: EvalResult, path: Path) -> Path:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 6))
+    for k, s in enumerate(r.segments):
+        ax.plot(
+            s.p_ref[:, 0],
+            s.p_ref[:, 1],
+            color=GT_COLOR,
+            lw=1.6,
+            label="ground truth" if k == 0 else None,
+        )
+    for k, s in enumerate(r.segments):
+        lab = "estimate (aligned)" if len(r.segments) == 1 else f"segment {s.segment}"
+        ax.plot(
+            s.p_est[:, 0], s.p_est[:, 1], color=SEG_COLORS[k % len(SEG_COLORS)], lw=1.1, label=lab
+        )
+        ax.plot(*s.p_est[0, :2], "o", color=SEG_COLORS[k % len(SEG_COLORS)], ms=5)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(
+        f"{r.label}: top view, {r.config.align} aligned\n"
+        f"ATE rmse {r.ate_trans.rmse:.3f} m over {r.matched} poses",
+        fontsize=10,
+    )
+    return _save(fig, path)
+
+
+def plot_error(r: EvalResult, path: Path) -> Path:
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    t0 = _t0(r)
+    for k, s in enumerate(r.segments):
+        t = (s.t_ns - t0) / 1e9
+        c = SEG_COLORS[k % len(SEG_COLORS)]
+        lab = None if len(r.segments) == 1 else f"segment {s.segment}"
+        a1.plot(t, s.ate_t, color=c, lw=1, label=lab)
+        a2.plot(t, s.ate_r, color=c, lw=1)
+    a1.axhline(r.ate_trans.rmse, color="k", ls="--", lw=0.8, label=f"rmse {r.ate_trans.rmse:.3f}")
+    a2.axhline(r.ate_rot.rmse, color="k", ls="--", lw=0.8, label=f"rmse {r.ate_rot.rmse:.2f}")
+    a1.set_ylabel("translation [m]")
+    a2.set_ylabel("rotation [deg]")
+    a2.set_xlabel("time since first matched pose [s]")
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+        a.legend(loc="upper left", fontsize=8)
+        a.set_ylim(bottom=0)
+    a1.set_title(f"{r.label}: ATE over time ({r.config.align} aligned)", fontsize=10)
+    return _save(fig, path)
+
+
+def plot_rpe(r: EvalResult, path: Path) -> Path:
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4.2))
+    lens = [L for L in r.lengths if L.trans.n > 0]
+    if lens:
+        labels = [f"{L.length_m:.1f}" for L in lens]
+        a1.boxplot([L.trans_errors for L in lens], showfliers=False)
+        a2.boxplot([100 * L.trans_errors / L.length_m for L in lens], showfliers=False)
+        for a in (a1, a2):
+            a.set_xticks(range(1, len(lens) + 1), labels)
+            a.set_xlabel("sub-trajectory length [m]")
+            a.grid(alpha=0.3, axis="y")
+    else:
+        a1.text(
+            0.5, 0.5, "trajectory too short for distance RPE", ha="center", transform=a1.transAxes
+        )
+    a1.set_ylabel("translation error [m]")
+    a2.set_ylabel("translation error [% of length]")
+    fig.suptitle(f"{r.label}: relative pose error per sub-trajectory length", fontsize=10)
+    return _save(fig, path)
+
+
+def plot_xyz(r: EvalResult, path: Path) -> Path:
+    plt = _plt()
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    t0 = _t0(r)
+    for k, s in enumerate(r.segments):
+        t = (s.t_ns - t0) / 1e9
+        c = SEG_COLORS[k % len(SEG_COLORS)]
+        for i, a in enumerate(axes):
+            a.plot(
+                t, s.p_ref[:, i], color=GT_COLOR, lw=1.6, label="ground truth" if k == 0 else None
+            )
+            a.plot(
+                t,
+                s.p_est[:, i],
+                color=c,
+                lw=1,
+                label=("estimate (aligned)" if len(r.segments) == 1 else f"segment {s.segment}"),
+            )
+    for i, a in enumerate(axes):
+        a.set_ylabel(f"{'xyz'[i]} [m]")
+        a.grid(alpha=0.3)
+    axes[0].legend(loc="best", fontsize=8)
+    axes[-1].set_xlabel("time since first matched pose [s]")
+    axes[0].set_title(f"{r.label}: positions ({r.config.align} aligned)", fontsize=10)
+    return _save(fig, path)
+
+
+def plot_result(r: EvalResult, out_dir: Path | str, prefix: str) -> list[Path]:
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"{out}: cannot create plot folder: {e}") from None
+    return [
+        plot_top(r, out / f"{prefix}_top.png"),
+        plot_error(r, out / f"{prefix}_error.png"),
+        plot_rpe(r, out / f"{prefix}_rpe.png"),
+        plot_xyz(r, out / f"{prefix}_xyz.png"),
+    ]
+
+
+def prefix_for(label: str) -> str:
+    """'final (smoothed)' -> 'final'."""
+    head = label.split()[0] if label.split() else "estimate"
+    return "".join(ch for ch in head if ch.isalnum() or ch in "-_") or "estimate"
+
+
+__all__ = ["plot_error", "plot_result", "plot_rpe", "plot_top", "plot_xyz", "prefix_for"]

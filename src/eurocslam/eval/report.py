@@ -1,0 +1,150 @@
+"""Evaluation reports: JSON (machine readable) and Markdown (for people and PRs)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from eurocslam.errors import OutputError
+from eurocslam.eval.evaluate import EvalResult
+from eurocslam.eval.metrics import Stats
+
+SCHEMA = "eurocslam.eval/1"
+
+
+def to_json_dict(results: list[EvalResult], extra: dict[str, Any] | None = None) -> dict:
+    d: dict[str, Any] = {"schema": SCHEMA, "results": [r.to_dict() for r in results]}
+    if extra:
+        d.update(extra)
+    return d
+
+
+def _clean(o: Any) -> Any:
+    """NaN/inf -> None so the JSON is strict."""
+    if isinstance(o, float):
+        return o if math.isfinite(o) else None
+    if isinstance(o, dict):
+        return {k: _clean(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_clean(v) for v in o]
+    return o
+
+
+def write_json(path: Path | str, data: dict) -> None:
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(_clean(data), indent=2, allow_nan=False) + "\n")
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write: {e}") from None
+
+
+def write_text(path: Path | str, text: str) -> None:
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    except OSError as e:
+        raise OutputError(f"{path}: cannot write: {e}") from None
+
+
+def fmt(v: float | None, digits: int = 4) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    return f"{v:.{digits}f}"
+
+
+def _row(name: str, s: Stats, digits: int = 4) -> str:
+    vals = [s.rmse, s.mean, s.median, s.std, s.min, s.max]
+    return f"| {name} | " + " | ".join(fmt(v, digits) for v in vals) + f" | {s.n} |"
+
+
+def _align_text(r: EvalResult) -> str:
+    cfg = r.config
+    a = cfg.align + (f" on the first {cfg.align_first} poses" if cfg.align_first else "")
+    if len(r.segments) == 1:
+        al = r.segments[0].alignment
+        if al.mode == "sim3":
+            a += f", scale {al.s:.4f}"
+        if al.mode in ("posyaw", "se3", "sim3", "origin"):
+            a += f", yaw {al.yaw_deg:+.2f} deg"
+    return a
+
+
+def markdown(r: EvalResult, title: str | None = None) -> str:
+    """One result as Markdown: header lines, statistics table, segment table when relevant."""
+    cfg = r.config
+    out = [f"### {title or r.label}", ""]
+    out.append(f"- estimate: `{r.est_name}` ({r.label})")
+    out.append(f"- ground truth: `{r.ref_name}`")
+    out.append(
+        f"- association: {r.matched} of {r.possible} possible pairs matched "
+        f"(max diff {cfg.max_diff_s:g} s, offset {cfg.offset_s:g} s)"
+    )
+    out.append(f"- alignment: {_align_text(r)}")
+    out.append(
+        f"- coverage: {100 * r.coverage:.1f} % of the {r.ref_span_s:.1f} s ground truth; "
+        f"ground-truth path {r.ref_length_m:.2f} m"
+    )
+    if r.drift_pct is not None:
+        out.append(f"- drift: {r.drift_pct:.2f} % of distance travelled (mean over RPE lengths)")
+    out += [
+        "",
+        "| metric | rmse | mean | median | std | min | max | n |",
+        "|---|---|---|---|---|---|---|---|",
+        _row("ATE translation [m]", r.ate_trans),
+        _row("ATE rotation [deg]", r.ate_rot, 3),
+        _row(f"RPE {cfg.rpe_delta} frame translation [m]", r.rpe_delta_trans),
+        _row(f"RPE {cfg.rpe_delta} frame rotation [deg]", r.rpe_delta_rot, 3),
+    ]
+    for L in r.lengths:
+        tag = f"{L.length_m:.2f} m" + (f" ({100 * L.fraction:.0f} %)" if L.fraction else "")
+        out.append(_row(f"RPE {tag} translation [m]", L.trans))
+        out.append(_row(f"RPE {tag} translation [%]", L.trans_pct, 2))
+        out.append(_row(f"RPE {tag} rotation [deg]", L.rot, 3))
+    if len(r.segments) > 1 or r.skipped:
+        out += [
+            "",
+            "| segment | matched / possible | duration [s] | GT length [m] | ATE rmse [m] "
+            "| RPE rmse [m] | alignment |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for s in r.segments:
+            a = s.association
+            dur = (s.t_ns[-1] - s.t_ns[0]) / 1e9
+            al = s.alignment
+            out.append(
+                f"| {s.segment} | {a.matched} / {a.possible} | {dur:.1f} | {s.gt_length_m:.2f} "
+                f"| {fmt(Stats.of(s.ate_t).rmse)} | {fmt(Stats.of(s.rpe_t).rmse)} "
+                f"| {al.mode}, yaw {al.yaw_deg:+.1f} deg, scale {al.s:.3f} |"
+            )
+        for sid, why in r.skipped:
+            out.append(f"| {sid} | skipped: {why} | | | | | |")
+    return "\n".join(out) + "\n"
+
+
+def markdown_summary(results: list[EvalResult]) -> str:
+    """Side-by-side headline figures (e.g. final vs online)."""
+    out = [
+        "| trajectory | ATE rmse [m] | ATE rot rmse [deg] | RPE 1 frame rmse [m] | drift [%] "
+        "| matched / possible | coverage |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in results:
+        out.append(
+            f"| {r.label} | {fmt(r.ate_trans.rmse)} | {fmt(r.ate_rot.rmse, 3)} "
+            f"| {fmt(r.rpe_delta_trans.rmse)} | {fmt(r.drift_pct, 2)} "
+            f"| {r.matched} / {r.possible} | {100 * r.coverage:.1f} % |"
+        )
+    return "\n".join(out) + "\n"
+
+
+def markdown_report(results: list[EvalResult]) -> str:
+    parts = ["## Trajectory evaluation", ""]
+    if len(results) > 1:
+        parts += [markdown_summary(results), ""]
+    for r in results:
+        parts.append(markdown(r))
+    return "\n".join(parts)
