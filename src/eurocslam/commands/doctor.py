@@ -1,4 +1,5 @@
-"""`eurocslam doctor SEQUENCE`: check an EuRoC ASL folder; exit 0 ok, 1 warnings, 2 errors."""
+"""`eurocslam doctor SEQUENCE`: check an EuRoC ASL folder (or a ROS bag / MCAP input);
+exit 0 ok, 1 warnings, 2 errors."""
 
 from __future__ import annotations
 
@@ -7,11 +8,17 @@ import json
 import sys
 
 NAME = "doctor"
-HELP = "check an EuRoC sequence folder (files, CSVs, timestamps, images, calibration)"
+HELP = "check an EuRoC sequence folder (files, CSVs, timestamps, images, calibration) or a bag"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("sequence", help="sequence folder (containing mav0/) or its mav0/ folder")
+    from eurocslam.dataset.bag import add_source_arguments
+
+    parser.add_argument(
+        "sequence",
+        help="sequence folder (containing mav0/) or its mav0/ folder; also a .bag, .db3, .mcap "
+        "or ROS 2 bag folder",
+    )
     parser.add_argument(
         "--full",
         action="store_true",
@@ -25,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="images per camera to decode fully when not --full (default 24)",
     )
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    add_source_arguments(parser)
     parser.epilog = (
         "Exit codes: 0 no problem, 1 warnings only, 2 errors. Each finding names the file, "
         "line and key."
@@ -32,22 +40,35 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eurocslam.dataset.doctor import diagnose
+    from eurocslam.dataset.bag import is_bag_path, source_options
+    from eurocslam.dataset.doctor import diagnose, diagnose_bag
     from eurocslam.progress import bar
 
     if args.sample < 0:
         print("eurocslam doctor: error: --sample must be >= 0", file=sys.stderr)
         return 2
-    pbar = bar(total=None, desc="decoding images", unit="img", enabled=None if args.full else False)
-    try:
-        report = diagnose(
-            args.sequence,
-            full=args.full,
-            sample=args.sample,
-            progress=lambda n, cam: pbar.update(n),
+    if is_bag_path(args.sequence):
+        report = diagnose_bag(args.sequence, **source_options(args))
+    else:
+        if args.topic or args.calib:
+            print(
+                "eurocslam doctor: error: --calib and --topic apply to bags; an ASL folder is "
+                "checked against its own sensor.yaml files",
+                file=sys.stderr,
+            )
+            return 2
+        pbar = bar(
+            total=None, desc="decoding images", unit="img", enabled=None if args.full else False
         )
-    finally:
-        pbar.close()
+        try:
+            report = diagnose(
+                args.sequence,
+                full=args.full,
+                sample=args.sample,
+                progress=lambda n, cam: pbar.update(n),
+            )
+        finally:
+            pbar.close()
     if args.json:
         print(json.dumps(report.to_dict(), indent=2))
     else:

@@ -981,3 +981,30 @@ def diagnose(
     `Finding`. `sample` images per camera are decoded (all of them with `full`); `progress(n,
     camera)` is called once per decoded image."""
     return _Doctor(path, full=full, sample=sample, progress=progress).run()
+
+
+def diagnose_bag(
+    path: Path | str,
+    *,
+    calib: Path | str | None = None,
+    topics: Any = None,
+) -> DoctorReport:
+    """The doctor on a ROS bag / MCAP input: `dataset.bag.check_bag`'s findings as a report."""
+    from eurocslam.dataset.bag import check_bag
+
+    t0 = time.perf_counter()
+    found = check_bag(path, calib=calib, topics=topics)
+    findings = sorted(
+        (Finding(f.level, "bag", f.message, Path(path).name) for f in found),
+        key=lambda f: _SEVERITY_RANK[f.severity],
+    )
+    return DoctorReport(
+        sequence=str(path),
+        mav0=None,
+        findings=tuple(findings),
+        streams=(),
+        stereo_pairs=0,
+        image_headers_read=0,
+        images_decoded=0,
+        elapsed_s=time.perf_counter() - t0,
+    )
