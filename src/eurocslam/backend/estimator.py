@@ -1,0 +1,482 @@
+"""Stereo-inertial factor graph: keyframe states X/V/B, explicit landmarks L, GTSAM smoother.
+
+Graph per keyframe k (body = IMU frame, world = gravity-aligned, z up):
+
+* `CombinedImuFactor(X(k-1), V(k-1), X(k), V(k), B(k-1), B(k))` from IMU preintegration between
+  the keyframes (bias random walk included). Across an IMU dropout the IMU factor is replaced by
+  a bias random-walk `BetweenFactor` and a loose velocity `BetweenFactor`: vision bridges it.
+* `GenericStereoFactor3D(X(k), L(j))` per stereo observation (uL, uR, v) in the rectified cam0
+  frame, `body_P_sensor = T_body_rect0`, under a Huber loss. A stereo observation fixes a point
+  in 3D, so landmarks never make the system rank-deficient.
+* Priors on X(0), V(0), B(0) at initialisation (GTSAM 4.3 has no initial-bias covariance).
+
+The smoother is an `IncrementalFixedLagSmoother` (or plain `ISAM2`). Fixed-lag pitfalls handled
+here: every new key is given a timestamp (landmarks included), a landmark is re-stamped each
+time it is observed, keys without values are never stamped, and a landmark that has been
+marginalised and is seen again gets a fresh key. Every factor is also kept in a per-segment
+global graph so a full batch optimisation can produce the final (smoothed) trajectory.
+
+All GTSAM failures (indeterminant system, NaN) surface as `EstimatorFailure`; the pipeline's
+health logic resets and starts a new segment.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B, L, V, X
+
+from eurocslam.backend.initializer import InitialState
+from eurocslam.backend.preintegration import bias, integrate, make_params
+from eurocslam.config import RunConfig
+from eurocslam.dataset.calib import ImuCalib
+from eurocslam.dataset.types import ImuData
+from eurocslam.frontend.types import RectifiedStereo
+from eurocslam.geometry import F64
+
+
+class EstimatorFailure(RuntimeError):
+    """The smoother could not be updated (degenerate system, NaN); the caller must reset."""
+
+
+@dataclass(frozen=True)
+class NavEstimate:
+    """State at one instant: pose, velocity and biases in the world frame."""
+
+    t_ns: int
+    T_world_body: F64
+    v_world: F64
+    bg: F64
+    ba: F64
+
+
+@dataclass
+class UpdateStats:
+    n_stereo_factors: int = 0
+    n_new_landmarks: int = 0
+    imu_bridged: bool = False  # IMU factor replaced by vision-only bridging
+    time_ms: float = 0.0
+
+
+@dataclass
+class _Segment:
+    graph: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)
+    values: dict[int, object] = field(default_factory=dict)  # key -> latest estimate
+    kf_times: list[int] = field(default_factory=list)
+    kf_index0: int = 0
+
+
+def _pose(T: F64) -> gtsam.Pose3:
+    return gtsam.Pose3(np.asarray(T, dtype=np.float64))
+
+
+class StereoInertialEstimator:
+    """Keyframe-based stereo-inertial smoother. One instance per trajectory segment."""
+
+    def __init__(
+        self,
+        imu_calib: ImuCalib,
+        stereo: RectifiedStereo,
+        imu: ImuData,
+        cfg: RunConfig | None = None,
+        *,
+        use_imu: bool = True,
+    ) -> None:
+        self.cfg = cfg or RunConfig()
+        self.imu = imu
+        self.use_imu = use_imu
+        self.params = make_params(imu_calib, self.cfg.imu)
+        self.stereo = stereo
+        self.K = gtsam.Cal3_S2Stereo(
+            stereo.fx, stereo.fy, 0.0, stereo.cx, stereo.cy, stereo.baseline
+        )
+        self.body_P_rect0 = _pose(stereo.T_body_rect0)
+        b = self.cfg.backend
+        base = gtsam.noiseModel.Isotropic.Sigma(3, b.stereo_sigma_px)
+        self.stereo_noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Huber.Create(b.huber_k), base
+        )
+        self._imu_rw_gyro = imu_calib.gyro_random_walk * self.cfg.imu.bias_walk_scale
+        self._imu_rw_acc = imu_calib.accel_random_walk * self.cfg.imu.bias_walk_scale
+        self._make_smoother()
+        self.k = -1  # index of the latest keyframe
+        self.t0_ns = 0
+        self.t_last_ns = 0
+        self.state: NavEstimate | None = None
+        self.lm_key: dict[int, int] = {}  # frontend landmark id -> current key index
+        self._next_lm = 0
+        self.landmarks: dict[int, F64] = {}  # key index -> world position (active window)
+        self.lm_fid: dict[int, int] = {}  # key index -> frontend id
+        self.segment = _Segment()
+        self.pim: gtsam.PreintegratedCombinedMeasurements | None = None
+        self._pim_t_ns = 0
+        self._pim_ok = True
+        self.stats = UpdateStats()
+        self.kf_estimates: dict[int, NavEstimate] = {}  # keyframe index -> smoothed estimate
+        self._window: list[int] = []  # keyframe indices still in the smoother
+
+    # ---- setup ----------------------------------------------------------------------------------
+    def _make_smoother(self) -> None:
+        b = self.cfg.backend
+        p = gtsam.ISAM2Params()
+        p.setRelinearizeThreshold(b.relinearize_threshold)
+        p.relinearizeSkip = b.relinearize_skip
+        p.findUnusedFactorSlots = True
+        if b.smoother == "fixed_lag":
+            self.smoother = gtsam.IncrementalFixedLagSmoother(b.lag_s, p)
+            self.isam = None
+        else:
+            self.smoother = None
+            self.isam = gtsam.ISAM2(p)
+
+    def _t(self, t_ns: int) -> float:
+        return (t_ns - self.t0_ns) * 1e-9
+
+    # ---- initialisation -------------------------------------------------------------------------
+    def initialize(
+        self,
+        init: InitialState,
+        landmark_ids: np.ndarray,
+        stereo_uv: F64,
+    ) -> NavEstimate:
+        """First keyframe with priors; for a dynamic start, the window's keyframes with IMU
+        factors between them are added too (their stereo observations are not kept)."""
+        c = self.cfg.init
+        self.t0_ns = init.t_ns
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        stamps: dict[int, float] = {}
+        dynamic = init.mode == "dynamic"
+        rot_sigma = c.prior_rot_sigma
+        pose_noise = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([rot_sigma] * 3 + [c.prior_pos_sigma] * 3)
+        )
+        vel_sigma = c.prior_vel_sigma_dynamic if dynamic else c.prior_vel_sigma_static
+        if not self.use_imu:
+            vel_sigma = 1.0
+        bias_noise = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([c.prior_accel_bias_sigma] * 3 + [c.prior_gyro_bias_sigma] * 3)
+        )
+        self.k = 0
+        graph.add(gtsam.PriorFactorPose3(X(0), _pose(init.T_world_body), pose_noise))
+        graph.add(
+            gtsam.PriorFactorVector(
+                V(0),
+                np.asarray(init.v_world, float),
+                gtsam.noiseModel.Isotropic.Sigma(3, vel_sigma),
+            )
+        )
+        b0 = bias(init.bg, init.ba)
+        graph.add(gtsam.PriorFactorConstantBias(B(0), b0, bias_noise))
+        values.insert(X(0), _pose(init.T_world_body))
+        values.insert(V(0), np.asarray(init.v_world, float))
+        values.insert(B(0), b0)
+        for key in (X(0), V(0), B(0)):
+            stamps[key] = 0.0
+        self.segment = _Segment(kf_index0=0)
+        self.segment.kf_times.append(init.t_ns)
+        self.t_last_ns = init.t_ns
+        self.state = NavEstimate(
+            init.t_ns,
+            np.asarray(init.T_world_body, float),
+            np.asarray(init.v_world, float),
+            np.asarray(init.bg, float),
+            np.asarray(init.ba, float),
+        )
+        self._reset_pim(init.t_ns, self.state)
+        self._add_stereo(0, init.T_world_body, landmark_ids, stereo_uv, graph, values, stamps, 0.0)
+        self._update(graph, values, stamps)
+        return self._read_state(0, init.t_ns)
+
+    # ---- IMU prediction ------------------------------------------------------------------------
+    def _reset_pim(self, t_ns: int, st: NavEstimate) -> None:
+        self.pim = gtsam.PreintegratedCombinedMeasurements(self.params, bias(st.bg, st.ba))
+        self._pim_t_ns = t_ns
+        self._pim_ok = True
+
+    def _extend_pim(self, t_ns: int) -> None:
+        assert self.pim is not None
+        if t_ns <= self._pim_t_ns:
+            return
+        info = integrate(self.pim, self.imu, self._pim_t_ns, t_ns)
+        if not info.ok(self.cfg.imu.max_gap_s):
+            self._pim_ok = False
+        self._pim_t_ns = t_ns
+
+    def imu_ok_since_keyframe(self) -> bool:
+        return self._pim_ok
+
+    def predict(self, t_ns: int) -> NavEstimate:
+        """Pose at `t_ns` predicted from the latest keyframe state: IMU preintegration, or a
+        constant-velocity model when the IMU is off or has a dropout."""
+        st = self.state
+        assert st is not None
+        dt = (t_ns - st.t_ns) * 1e-9
+        if self.use_imu:
+            self._extend_pim(t_ns)
+        if self.use_imu and self._pim_ok:
+            assert self.pim is not None
+            nav = gtsam.NavState(
+                gtsam.Rot3(st.T_world_body[:3, :3]),
+                gtsam.Point3(*st.T_world_body[:3, 3]),
+                st.v_world,
+            )
+            pred = self.pim.predict(nav, bias(st.bg, st.ba))
+            T = pred.pose().matrix()
+            v = np.asarray(pred.velocity())
+        else:
+            T = st.T_world_body.copy()
+            T[:3, 3] = T[:3, 3] + st.v_world * dt
+            v = st.v_world
+        return NavEstimate(t_ns, T, v, st.bg, st.ba)
+
+    # ---- keyframes ------------------------------------------------------------------------------
+    def add_keyframe(
+        self,
+        t_ns: int,
+        landmark_ids: np.ndarray,
+        stereo_uv: F64,
+        T_world_body_guess: F64 | None = None,
+    ) -> NavEstimate:
+        """Add a keyframe at `t_ns` with its stereo observations; returns its smoothed state."""
+        assert self.state is not None
+        k = self.k + 1
+        pred = self.predict(t_ns)
+        T_guess = T_world_body_guess if T_world_body_guess is not None else pred.T_world_body
+        v_guess = pred.v_world
+        if T_world_body_guess is not None and not (self.use_imu and self._pim_ok):
+            dt = max((t_ns - self.state.t_ns) * 1e-9, 1e-3)
+            v_guess = (T_world_body_guess[:3, 3] - self.state.T_world_body[:3, 3]) / dt
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        stamps: dict[int, float] = {}
+        bridged = False
+        dt = (t_ns - self.state.t_ns) * 1e-9
+        if self.use_imu and self._pim_ok:
+            assert self.pim is not None
+            graph.add(
+                gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self.pim)
+            )
+        else:
+            bridged = self.use_imu
+            # no usable IMU: bias random walk and a loose velocity link; vision fixes the pose
+            sg = self._imu_rw_gyro * math.sqrt(max(dt, 1e-3))
+            sa = self._imu_rw_acc * math.sqrt(max(dt, 1e-3))
+            graph.add(
+                gtsam.BetweenFactorConstantBias(
+                    B(k - 1),
+                    B(k),
+                    gtsam.imuBias.ConstantBias(),
+                    gtsam.noiseModel.Diagonal.Sigmas(np.array([sa] * 3 + [sg] * 3)),
+                )
+            )
+            graph.add(
+                gtsam.BetweenFactorVector(
+                    V(k - 1),
+                    V(k),
+                    np.zeros(3),
+                    gtsam.noiseModel.Isotropic.Sigma(3, 2.0 * max(dt, 0.05)),
+                )
+            )
+            if not self.use_imu:
+                # visual-only: a weak constant-velocity motion prior keeps V and B determined
+                graph.add(
+                    gtsam.PriorFactorConstantBias(
+                        B(k), gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Isotropic.Sigma(6, 1.0)
+                    )
+                )
+        values.insert(X(k), _pose(T_guess))
+        values.insert(V(k), np.asarray(v_guess, float))
+        values.insert(B(k), bias(self.state.bg, self.state.ba))
+        tk = self._t(t_ns)
+        for key in (X(k), V(k), B(k)):
+            stamps[key] = tk
+        self._add_stereo(k, T_guess, landmark_ids, stereo_uv, graph, values, stamps, tk)
+        if not (self.use_imu and self._pim_ok) and (
+            self.stats.n_stereo_factors < self.cfg.backend.min_obs_without_imu
+        ):
+            raise EstimatorFailure(
+                f"keyframe at t={t_ns} ns has {self.stats.n_stereo_factors} stereo observations "
+                "and no IMU constraint"
+            )
+        self.stats.imu_bridged = bridged
+        self.k = k
+        self.segment.kf_times.append(t_ns)
+        self._update(graph, values, stamps)
+        est = self._read_state(k, t_ns)
+        self._reset_pim(t_ns, est)
+        return est
+
+    def _add_stereo(
+        self,
+        k: int,
+        T_world_body: F64,
+        landmark_ids: np.ndarray,
+        stereo_uv: F64,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        stamps: dict[int, float],
+        tk: float,
+    ) -> None:
+        b = self.cfg.backend
+        st = self.stereo
+        ids = np.asarray(landmark_ids, dtype=np.int64)
+        uv = np.asarray(stereo_uv, dtype=np.float64).reshape(-1, 3)
+        disp = uv[:, 0] - uv[:, 1]
+        ok = np.isfinite(uv).all(axis=1) & (disp >= b.min_disparity_px)
+        depth = np.where(ok, st.fx * st.baseline / np.where(ok, disp, 1.0), np.inf)
+        ok &= depth <= b.max_depth_m
+        idx = np.nonzero(ok)[0]
+        if idx.size > b.max_landmarks_per_keyframe:
+            # prefer landmarks already in the graph, then the nearest
+            known = np.array([int(ids[i]) in self.lm_key for i in idx])
+            order = np.lexsort((depth[idx], ~known))
+            idx = idx[order[: b.max_landmarks_per_keyframe]]
+        T_world_rect0 = np.asarray(T_world_body) @ st.T_body_rect0
+        n_new = 0
+        for i in idx.tolist():
+            fid = int(ids[i])
+            key_i = self.lm_key.get(fid)
+            if key_i is None or key_i not in self.landmarks:
+                key_i = self._next_lm
+                self._next_lm += 1
+                self.lm_key[fid] = key_i
+                self.lm_fid[key_i] = fid
+                z = depth[i]
+                Xc = np.array([(uv[i, 0] - st.cx) * z / st.fx, (uv[i, 2] - st.cy) * z / st.fy, z])
+                Xw = T_world_rect0[:3, :3] @ Xc + T_world_rect0[:3, 3]
+                values.insert(L(key_i), gtsam.Point3(*Xw))
+                self.landmarks[key_i] = Xw
+                n_new += 1
+            stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
+            graph.add(
+                gtsam.GenericStereoFactor3D(
+                    gtsam.StereoPoint2(uv[i, 0], uv[i, 1], uv[i, 2]),
+                    self.stereo_noise,
+                    X(k),
+                    L(key_i),
+                    self.K,
+                    self.body_P_rect0,
+                )
+            )
+        self.stats.n_stereo_factors = len(idx)
+        self.stats.n_new_landmarks = n_new
+
+    # ---- smoother -------------------------------------------------------------------------------
+    def _update(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]
+    ) -> None:
+        for i in range(graph.size()):
+            self.segment.graph.add(graph.at(i))
+        try:
+            if self.smoother is not None:
+                ts = gtsam.FixedLagSmootherKeyTimestampMap()
+                for key, t in stamps.items():
+                    ts.insert((key, t))
+                self.smoother.update(graph, values, ts)
+                est = self.smoother.calculateEstimate()
+            else:
+                assert self.isam is not None
+                self.isam.update(graph, values)
+                est = self.isam.calculateEstimate()
+        except RuntimeError as e:
+            raise EstimatorFailure(f"smoother update failed: {e}") from None
+        self._est = est
+        # active landmarks: those still in the window
+        active: dict[int, F64] = {}
+        for key_i in list(self.landmarks):
+            key = L(key_i)
+            if est.exists(key):
+                p = est.atPoint3(key)
+                active[key_i] = np.asarray(p)
+                self.segment.values[key] = p
+            else:
+                self.lm_fid.pop(key_i, None)
+        self.landmarks = active
+
+    def _read_state(self, k: int, t_ns: int) -> NavEstimate:
+        est = self._est
+        pose = est.atPose3(X(k))
+        v = np.asarray(est.atVector(V(k)))
+        b = est.atConstantBias(B(k))
+        T = pose.matrix()
+        ne = NavEstimate(t_ns, T, v, np.asarray(b.gyroscope()), np.asarray(b.accelerometer()))
+        if not (np.all(np.isfinite(T)) and np.all(np.isfinite(v))):
+            raise EstimatorFailure("non-finite state after update")
+        self.state = ne
+        self.t_last_ns = t_ns
+        # refresh the window's keyframe estimates (smoothing)
+        if not self._window or self._window[-1] != k:
+            self._window.append(k)
+        keep = []
+        for kk in self._window:
+            if not est.exists(X(kk)):
+                continue  # marginalised: its last estimate stays
+            keep.append(kk)
+            pose_kk = est.atPose3(X(kk))
+            v_kk = np.asarray(est.atVector(V(kk)))
+            b_kk = est.atConstantBias(B(kk))
+            self.kf_estimates[kk] = NavEstimate(
+                self.segment.kf_times[kk],
+                pose_kk.matrix(),
+                v_kk,
+                np.asarray(b_kk.gyroscope()),
+                np.asarray(b_kk.accelerometer()),
+            )
+            self.segment.values[X(kk)] = pose_kk
+            self.segment.values[V(kk)] = v_kk
+            self.segment.values[B(kk)] = b_kk
+        self._window = keep
+        return ne
+
+    def active_landmarks(self) -> tuple[np.ndarray, F64]:
+        """Frontend ids and world positions of the landmarks in the smoother window."""
+        keys = [k for k in self.landmarks if k in self.lm_fid]
+        ids = np.array([self.lm_fid[k] for k in keys], dtype=np.int64)
+        pts = np.array([self.landmarks[k] for k in keys]).reshape(-1, 3)
+        return ids, pts
+
+    # ---- final batch ---------------------------------------------------------------------------
+    def final_batch(self, max_iterations: int = 30) -> tuple[dict[int, F64], dict[int, F64]]:
+        """Full Levenberg-Marquardt over every factor of the segment.
+
+        Returns (keyframe index -> T_world_body, landmark key -> position). Falls back to the
+        smoother's estimates if the batch fails to converge."""
+        vals = gtsam.Values()
+        for key, v in self.segment.values.items():
+            c = chr(gtsam.Symbol(key).chr())
+            if c == "l":
+                vals.insert(key, gtsam.Point3(*np.asarray(v, dtype=float)))
+            elif c == "v":
+                vals.insert(key, np.asarray(v, dtype=float))
+            else:
+                vals.insert(key, v)
+        graph = self.segment.graph
+        poses = {kk: e.T_world_body for kk, e in self.kf_estimates.items()}
+        lms = {
+            gtsam.Symbol(key).index(): np.asarray(v)
+            for key, v in self.segment.values.items()
+            if gtsam.Symbol(key).chr() == ord("l")
+        }
+        try:
+            params = gtsam.LevenbergMarquardtParams()
+            params.setMaxIterations(max_iterations)
+            result = gtsam.LevenbergMarquardtOptimizer(graph, vals, params).optimize()
+        except RuntimeError:
+            return poses, lms
+        out = {}
+        for kk in poses:
+            if result.exists(X(kk)):
+                T = result.atPose3(X(kk)).matrix()
+                if np.all(np.isfinite(T)):
+                    out[kk] = T
+                else:
+                    return poses, lms
+        lm_out = {}
+        for key_i in lms:
+            if result.exists(L(key_i)):
+                lm_out[key_i] = np.asarray(result.atPoint3(L(key_i)))
+        return out, lm_out

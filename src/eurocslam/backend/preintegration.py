@@ -1,0 +1,105 @@
+"""IMU preintegration: GTSAM parameters from `ImuCalib` and integration between two timestamps.
+
+Noise densities from `imu0/sensor.yaml` are continuous-time; GTSAM's
+`PreintegrationCombinedParams` takes continuous-time covariances, so they are passed as
+`density**2 * I` (never divided or multiplied by dt here). Gravity is `g` along -z of the world
+frame (`MakeSharedU`). The initial-bias covariance setter is gone from GTSAM 4.3: the estimator
+puts a prior on the first bias instead.
+
+`integrate(pim, imu, t0_ns, t1_ns)` integrates exactly the span [t0, t1]: each sample holds until
+the next one (zero-order hold), the first partial interval uses the sample at or before t0, so
+consecutive spans add up without double counting. Spans with an IMU dropout (a gap between
+samples longer than `max_gap_s`) are reported, so the caller can bridge them with vision.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from eurocslam.config import ImuConfig
+from eurocslam.dataset.calib import ImuCalib
+from eurocslam.dataset.types import ImuData
+from eurocslam.geometry import F64
+
+
+def make_params(imu: ImuCalib, cfg: ImuConfig | None = None) -> gtsam.PreintegrationCombinedParams:
+    """`PreintegrationCombinedParams` (z-up gravity) from the IMU calibration."""
+    cfg = cfg or ImuConfig()
+    p = gtsam.PreintegrationCombinedParams.MakeSharedU(cfg.gravity)
+    i3 = np.eye(3)
+    p.setGyroscopeCovariance((imu.gyro_noise_density * cfg.gyro_noise_scale) ** 2 * i3)
+    p.setAccelerometerCovariance((imu.accel_noise_density * cfg.accel_noise_scale) ** 2 * i3)
+    p.setBiasOmegaCovariance((imu.gyro_random_walk * cfg.bias_walk_scale) ** 2 * i3)
+    p.setBiasAccCovariance((imu.accel_random_walk * cfg.bias_walk_scale) ** 2 * i3)
+    p.setIntegrationCovariance(cfg.integration_sigma**2 * i3)
+    T_body_imu = np.asarray(imu.T_body_imu, dtype=np.float64)
+    if not np.allclose(T_body_imu, np.eye(4), atol=1e-9):
+        p.setBodyPSensor(gtsam.Pose3(T_body_imu))
+    return p
+
+
+def bias(bg: F64, ba: F64) -> gtsam.imuBias.ConstantBias:
+    return gtsam.imuBias.ConstantBias(np.asarray(ba, dtype=float), np.asarray(bg, dtype=float))
+
+
+@dataclass(frozen=True)
+class SpanInfo:
+    """What happened while integrating one span."""
+
+    n_samples: int
+    max_gap_s: float  # largest interval without an IMU sample inside the span
+    covered: bool  # IMU samples exist at or before t0 and at or after t1 (no dropout at the ends)
+
+    def ok(self, max_gap_s: float) -> bool:
+        return self.covered and self.max_gap_s <= max_gap_s
+
+
+def integrate(
+    pim: gtsam.PreintegratedCombinedMeasurements, imu: ImuData, t0_ns: int, t1_ns: int
+) -> SpanInfo:
+    """Add the IMU measurements covering [t0_ns, t1_ns] to `pim` (zero-order hold)."""
+    if t1_ns <= t0_ns:
+        return SpanInfo(0, 0.0, True)
+    t = imu.t_ns
+    # last sample at or before t0 (holds over the first partial interval)
+    i0 = int(np.searchsorted(t, t0_ns, side="right")) - 1
+    i1 = int(np.searchsorted(t, t1_ns, side="left"))  # first sample at or after t1
+    covered = i0 >= 0 and i1 < t.size
+    i0 = max(i0, 0)
+    i1 = min(i1, t.size)
+    if i0 >= t.size or i1 <= i0:
+        # no sample inside: nothing to integrate
+        return SpanInfo(0, (t1_ns - t0_ns) * 1e-9, False)
+    idx = np.arange(i0, i1)
+    starts = np.maximum(t[idx], t0_ns)
+    ends = np.empty_like(starts)
+    ends[:-1] = t[idx[1:]]
+    ends[-1] = t1_ns
+    ends = np.minimum(ends, t1_ns)
+    dts = (ends - starts) * 1e-9
+    gyro = imu.gyro
+    acc = imu.accel
+    for k, i in enumerate(idx.tolist()):
+        dt = float(dts[k])
+        if dt > 0.0:
+            pim.integrateMeasurement(acc[i], gyro[i], dt)
+    gaps = dts
+    if t[i0] > t0_ns:
+        gaps = np.append(gaps, (t[i0] - t0_ns) * 1e-9)
+    return SpanInfo(int(idx.size), float(np.max(gaps)) if gaps.size else 0.0, covered)
+
+
+def gap_in(imu: ImuData, t0_ns: int, t1_ns: int) -> float:
+    """Largest interval [s] without IMU data inside [t0, t1] (including the ends)."""
+    t = imu.t_ns
+    i0 = int(np.searchsorted(t, t0_ns, side="right")) - 1
+    i1 = int(np.searchsorted(t, t1_ns, side="left"))
+    pts = t[max(i0, 0) : min(i1 + 1, t.size)]
+    pts = np.clip(pts, t0_ns, t1_ns)
+    pts = np.concatenate([[t0_ns] if i0 < 0 else [], pts, [t1_ns] if i1 >= t.size else []])
+    if pts.size < 2:
+        return (t1_ns - t0_ns) * 1e-9
+    return float(np.max(np.diff(pts))) * 1e-9

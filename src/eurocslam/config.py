@@ -1,0 +1,243 @@
+"""Run configuration: typed frozen dataclasses loaded from `configs/*.yaml`.
+
+Every tunable of `eurocslam run` lives here with its default; `configs/euroc.yaml` lists them all
+with comments. Loading is strict: an unknown key, a wrong type or an out-of-range value raises
+`ConfigError` naming the file and the dotted key. The resolved configuration (defaults merged
+with the file) is written next to the outputs (`OUT/config.yaml`), so a run can be reproduced.
+
+The `frontend:` section is kept as a plain mapping here and handed to the frontend's own config
+class (`eurocslam.frontend.FrontendConfig`), which validates its keys the same way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from eurocslam.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ImuConfig:
+    gravity: float = 9.81  # m/s^2, world z up
+    # multipliers on the sensor.yaml noise densities (datasheet values are optimistic)
+    gyro_noise_scale: float = 1.0
+    accel_noise_scale: float = 1.0
+    bias_walk_scale: float = 1.0
+    integration_sigma: float = 1e-4  # continuous-time position integration noise
+    max_gap_s: float = 0.05  # longer gaps between IMU samples count as an IMU dropout
+
+
+@dataclass(frozen=True)
+class InitConfig:
+    mode: str = "auto"  # auto | static | dynamic
+    static_window_s: float = 0.6  # IMU window centred on the first frame to test for stillness
+    static_gyro_std_max: float = 0.02  # rad/s: above this the platform is moving
+    static_accel_std_max: float = 0.15  # m/s^2
+    static_accel_norm_tol: float = 0.4  # | |a| - g | below this while still
+    dynamic_window_s: float = 1.5  # stereo VO span aligned with the IMU for a moving start
+    dynamic_min_keyframes: int = 5
+    # priors at initialisation (stddev)
+    prior_rot_sigma: float = 0.01  # rad (roll/pitch from gravity, yaw fixed by gauge)
+    prior_pos_sigma: float = 0.001  # m
+    prior_vel_sigma_static: float = 0.01  # m/s
+    prior_vel_sigma_dynamic: float = 0.1  # m/s
+    prior_gyro_bias_sigma: float = 0.005  # rad/s
+    prior_accel_bias_sigma: float = 0.1  # m/s^2
+
+
+@dataclass(frozen=True)
+class BackendConfig:
+    smoother: str = "fixed_lag"  # fixed_lag | isam2 (isam2 keeps every state: slower, no marginals)
+    lag_s: float = 3.0  # fixed-lag smoother horizon
+    relinearize_threshold: float = 0.01
+    relinearize_skip: int = 1
+    stereo_sigma_px: float = 1.0
+    huber_k: float = 1.345  # Huber threshold in units of sigma
+    min_disparity_px: float = 1.0  # stereo observations below this are left out
+    max_depth_m: float = 40.0
+    min_obs_without_imu: int = 10  # a keyframe without an IMU factor needs this many points
+    max_landmarks_per_keyframe: int = 150
+    max_keyframe_interval_s: float = 0.5  # force a keyframe after this long (bounds IMU spans)
+    final_batch: bool = True  # one full Levenberg-Marquardt over each segment at the end
+    final_batch_max_iterations: int = 30
+
+
+@dataclass(frozen=True)
+class HealthConfig:
+    max_speed: float = 8.0  # m/s
+    max_gyro_bias: float = 0.3  # rad/s
+    max_accel_bias: float = 1.5  # m/s^2
+    max_lost_s: float = 2.0  # IMU-only bridging longer than this resets
+    max_lost_s_no_imu: float = 0.3  # no IMU and no tracking: reset sooner
+    max_step_m: float = 1.0  # a keyframe jump larger than this is not plausible at 20 Hz
+    min_tracked: int = 15  # fewer tracked landmarks counts as lost for the backend
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    landmarks_every_n_keyframes: int = 1  # /slam/landmarks rate
+    draw_features: bool = True  # tracked features on the cam0 image (annotations)
+    groundtruth_overlay: bool = True  # ground truth aligned at the first pose (position + yaw)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    imu: ImuConfig = field(default_factory=ImuConfig)
+    init: InitConfig = field(default_factory=InitConfig)
+    backend: BackendConfig = field(default_factory=BackendConfig)
+    health: HealthConfig = field(default_factory=HealthConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    frontend: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+
+_CHOICES = {
+    "init.mode": ("auto", "static", "dynamic"),
+    "backend.smoother": ("fixed_lag", "isam2"),
+}
+
+
+def _coerce(value: Any, typ: Any, key: str, origin: str) -> Any:
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{origin}: key '{key}' must be true or false, got {value!r}")
+        return value
+    if typ is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{origin}: key '{key}' must be an integer, got {value!r}")
+        return value
+    if typ is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{origin}: key '{key}' must be a number, got {value!r}")
+        return float(value)
+    if typ is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{origin}: key '{key}' must be a string, got {value!r}")
+        if key in _CHOICES and value not in _CHOICES[key]:
+            raise ConfigError(
+                f"{origin}: key '{key}' must be one of {', '.join(_CHOICES[key])}, got {value!r}"
+            )
+        return value
+    raise ConfigError(f"{origin}: key '{key}' has an unsupported type")  # pragma: no cover
+
+
+def _section(cls: type, data: Any, prefix: str, origin: str) -> Any:
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{origin}: key '{prefix}' must be a mapping")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in fields(cls)}
+    for k in data:
+        if k not in names:
+            raise ConfigError(
+                f"{origin}: unknown key '{prefix}.{k}' (known: {', '.join(sorted(names))})"
+            )
+    kw = {k: _coerce(v, hints[k], f"{prefix}.{k}", origin) for k, v in data.items()}
+    obj = cls(**kw)
+    _check_ranges(obj, prefix, origin)
+    return obj
+
+
+def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            continue
+        if v != v or v < 0:  # NaN or negative
+            raise ConfigError(f"{origin}: key '{prefix}.{f.name}' must be >= 0, got {v!r}")
+    positive = {
+        "imu": (
+            "gravity",
+            "gyro_noise_scale",
+            "accel_noise_scale",
+            "bias_walk_scale",
+            "integration_sigma",
+            "max_gap_s",
+        ),
+        "init": (
+            "static_window_s",
+            "dynamic_window_s",
+            "prior_rot_sigma",
+            "prior_pos_sigma",
+            "prior_vel_sigma_static",
+            "prior_vel_sigma_dynamic",
+            "prior_gyro_bias_sigma",
+            "prior_accel_bias_sigma",
+        ),
+        "backend": (
+            "lag_s",
+            "stereo_sigma_px",
+            "huber_k",
+            "max_depth_m",
+            "max_keyframe_interval_s",
+            "relinearize_skip",
+            "max_landmarks_per_keyframe",
+        ),
+        "health": ("max_speed", "max_gyro_bias", "max_accel_bias", "max_lost_s", "max_step_m"),
+    }
+    for name in positive.get(prefix, ()):
+        if getattr(obj, name) <= 0:
+            raise ConfigError(f"{origin}: key '{prefix}.{name}' must be > 0")
+
+
+def config_from_dict(data: Any, origin: str = "<config>") -> RunConfig:
+    """Build a `RunConfig` from a mapping (missing keys take their defaults)."""
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{origin}: top level must be a mapping of sections")
+    sections = {
+        "imu": ImuConfig,
+        "init": InitConfig,
+        "backend": BackendConfig,
+        "health": HealthConfig,
+        "output": OutputConfig,
+    }
+    for k in data:
+        if k not in (*sections, "frontend"):
+            raise ConfigError(
+                f"{origin}: unknown section '{k}' (known: {', '.join([*sections, 'frontend'])})"
+            )
+    kw: dict[str, Any] = {k: _section(cls, data.get(k), k, origin) for k, cls in sections.items()}
+    fe = data.get("frontend") or {}
+    if not isinstance(fe, dict):
+        raise ConfigError(f"{origin}: key 'frontend' must be a mapping")
+    kw["frontend"] = dict(fe)
+    return RunConfig(**kw)
+
+
+def load_config(path: Path | str | None = None) -> RunConfig:
+    """Load a YAML config; `None` loads the shipped `configs/euroc.yaml` defaults."""
+    if path is None:
+        return config_from_dict(yaml.safe_load(default_config_text()), "<built-in euroc.yaml>")
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: config file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{p}: cannot read: {e}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise ConfigError(f"{p}: not valid YAML: {e}") from None
+    return config_from_dict(data, str(p))
+
+
+def default_config_text() -> str:
+    """The commented `configs/euroc.yaml` of the source tree, or "" when installed without it
+    (the dataclass defaults are the same values; a test keeps them in step)."""
+    repo = Path(__file__).resolve().parents[2] / "configs" / "euroc.yaml"
+    return repo.read_text() if repo.exists() else ""

@@ -1,0 +1,221 @@
+"""Backend alone, without images: simulated IMU + stereo observations of random landmarks."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from eurocslam.backend.estimator import EstimatorFailure, StereoInertialEstimator
+from eurocslam.backend.initializer import (
+    InitialState,
+    choose_mode,
+    dynamic_init,
+    static_init,
+    stillness,
+)
+from eurocslam.backend.preintegration import gap_in, integrate, make_params
+from eurocslam.backend.simulate import (
+    euroc_like_stereo,
+    imu_from_motion,
+    lissajous_motion,
+    observe,
+    random_landmarks,
+    still_motion,
+)
+from eurocslam.config import BackendConfig, ImuConfig, InitConfig, RunConfig
+from eurocslam.dataset.calib import default_rig
+from eurocslam.dataset.types import ImuData
+from eurocslam.geometry import rotation_angle
+
+T0 = 1_400_000_000_000_000_000
+RIG = default_rig()
+BG = np.array([0.002, -0.003, 0.0015])
+BA = np.array([0.05, -0.03, 0.02])
+
+
+def _noisy_imu(motion, seed=0):  # type: ignore[no-untyped-def]
+    s = np.sqrt(200.0)
+    return imu_from_motion(
+        motion,
+        T0,
+        bg=BG,
+        ba=BA,
+        gyro_sigma=RIG.imu.gyro_noise_density * s,
+        accel_sigma=RIG.imu.accel_noise_density * s,
+        seed=seed,
+    )
+
+
+def _velocity(motion, t):  # type: ignore[no-untyped-def]
+    h = 1e-4
+    return (motion.pose(t + h)[:3, 3] - motion.pose(t - h)[:3, 3]) / (2 * h)
+
+
+def _ns(t: float) -> int:
+    return T0 + round(t * 1e9)
+
+
+def test_params_use_continuous_time_densities() -> None:
+    p = make_params(RIG.imu, ImuConfig(gyro_noise_scale=2.0))
+    np.testing.assert_allclose(
+        p.getGyroscopeCovariance(), (2.0 * RIG.imu.gyro_noise_density) ** 2 * np.eye(3)
+    )
+    np.testing.assert_allclose(
+        p.getAccelerometerCovariance(), RIG.imu.accel_noise_density**2 * np.eye(3)
+    )
+    np.testing.assert_allclose(p.getBiasOmegaCovariance(), RIG.imu.gyro_random_walk**2 * np.eye(3))
+    np.testing.assert_allclose(p.n_gravity, [0.0, 0.0, -9.81])
+
+
+def test_integration_spans_add_up_and_match_motion() -> None:
+    m = lissajous_motion(4.0)
+    imu = imu_from_motion(m, T0)
+    params = make_params(RIG.imu)
+    whole = gtsam.PreintegratedCombinedMeasurements(params, gtsam.imuBias.ConstantBias())
+    info = integrate(whole, imu, _ns(0.5), _ns(1.503))
+    assert info.ok(0.05) and info.n_samples > 150
+    assert whole.deltaTij() == pytest.approx(1.003, abs=1e-9)
+    # split at a time between samples: same total time, nearly the same deltas
+    a = gtsam.PreintegratedCombinedMeasurements(params, gtsam.imuBias.ConstantBias())
+    integrate(a, imu, _ns(0.5), _ns(1.0012))
+    integrate(a, imu, _ns(1.0012), _ns(1.503))
+    assert a.deltaTij() == pytest.approx(whole.deltaTij(), abs=1e-9)
+    np.testing.assert_allclose(a.deltaPij(), whole.deltaPij(), atol=1e-5)
+    # the prediction reproduces the true motion (noise-free IMU)
+    Ta, Tb = m.pose(0.5), m.pose(1.503)
+    nav = gtsam.NavState(gtsam.Rot3(Ta[:3, :3]), gtsam.Point3(*Ta[:3, 3]), _velocity(m, 0.5))
+    pred = whole.predict(nav, gtsam.imuBias.ConstantBias())
+    assert np.linalg.norm(pred.pose().translation() - Tb[:3, 3]) < 2e-3
+    assert rotation_angle(pred.pose().rotation().matrix().T @ Tb[:3, :3]) < 1e-3
+
+
+def test_gap_detection() -> None:
+    m = still_motion(3.0)
+    imu = imu_from_motion(m, T0)
+    keep = (imu.t_ns < _ns(1.0)) | (imu.t_ns > _ns(1.5))
+    gappy = ImuData(imu.t_ns[keep], imu.gyro[keep], imu.accel[keep])
+    assert gap_in(gappy, _ns(0.2), _ns(0.8)) < 0.006
+    assert gap_in(gappy, _ns(0.9), _ns(1.7)) == pytest.approx(0.5, abs=0.01)
+    pim = gtsam.PreintegratedCombinedMeasurements(make_params(RIG.imu))
+    assert not integrate(pim, gappy, _ns(0.9), _ns(1.7)).ok(0.05)
+
+
+def test_static_init_gravity_and_gyro_bias() -> None:
+    m = still_motion(3.0)
+    imu = _noisy_imu(m)
+    cfg = InitConfig()
+    assert choose_mode(imu, _ns(1.0), cfg, 9.81) == "static"
+    init = static_init(imu, _ns(1.0), cfg)
+    R_true = m.pose(1.0)[:3, :3]
+    # roll/pitch: the gravity direction in the body frame
+    g_est = init.T_world_body[:3, :3].T @ [0, 0, 1]
+    g_true = R_true.T @ [0, 0, 1]
+    assert np.degrees(np.arccos(np.clip(g_est @ g_true, -1, 1))) < 0.5
+    assert abs(g_est[0]) > 0.99  # the body x axis points up, not the identity
+    np.testing.assert_allclose(init.bg, BG, atol=1e-3)
+    assert np.all(init.v_world == 0)
+
+
+def test_moving_start_is_not_static() -> None:
+    m = lissajous_motion(4.0, scale=1.5, rot_scale=2.0)
+    imu = _noisy_imu(m)
+    st = stillness(imu, _ns(0.7), _ns(1.3), 9.81, InitConfig())
+    assert not st.still
+    assert choose_mode(imu, _ns(1.0), InitConfig(), 9.81) == "dynamic"
+
+
+def test_dynamic_init_recovers_gravity_velocity_and_gyro_bias() -> None:
+    m = lissajous_motion(4.0, scale=1.5, rot_scale=2.0)
+    imu = _noisy_imu(m)
+    times = [_ns(0.5 + 0.1 * k) for k in range(16)]
+    # VO frame: an arbitrary rotation and offset of the true world
+    from eurocslam.geometry import make_T, so3_exp
+
+    T_vo_world = make_T(so3_exp(np.array([0.3, -0.2, 1.0])), np.array([1.0, 2.0, -0.5]))
+    T_vo = [T_vo_world @ m.pose((t - T0) * 1e-9) for t in times]
+    init = dynamic_init(make_params(RIG.imu), imu, times, T_vo)
+    assert init.mode == "dynamic" and len(init.window) == 16
+    np.testing.assert_allclose(init.bg, BG, atol=2e-3)
+    # the recovered world is gravity-aligned: compare roll/pitch of every window pose
+    for (t, T_w, v_w), t_true in zip(init.window, times, strict=True):
+        R_true = m.pose((t_true - T0) * 1e-9)[:3, :3]
+        g_est = T_w[:3, :3].T @ [0, 0, 1]
+        g_true = R_true.T @ [0, 0, 1]
+        assert np.degrees(np.arccos(np.clip(g_est @ g_true, -1, 1))) < 1.0
+        assert abs(np.linalg.norm(v_w) - np.linalg.norm(_velocity(m, (t - T0) * 1e-9))) < 0.05
+
+
+def _run_sim(
+    cfg: RunConfig,
+    duration: float = 8.0,
+    kf_dt: float = 0.25,
+    imu: ImuData | None = None,
+    use_imu: bool = True,
+    blind: tuple[float, float] | None = None,
+) -> tuple[np.ndarray, StereoInertialEstimator]:
+    m = lissajous_motion(duration)
+    imu = imu if imu is not None else _noisy_imu(m)
+    st = euroc_like_stereo()
+    lms = random_landmarks(3000)
+    rng = np.random.default_rng(3)
+    est = StereoInertialEstimator(RIG.imu, st, imu, cfg, use_imu=use_imu)
+    init = InitialState(_ns(0.0), m.pose(0.0), _velocity(m, 0.0), BG, BA, "dynamic")
+    o = observe(m.pose(0.0), lms, st, pixel_sigma=0.5, rng=rng)
+    est.initialize(init, o.ids, o.uv)
+    errs = []
+    n = round(duration / kf_dt)
+    for i in range(1, n):
+        t = i * kf_dt
+        T = m.pose(t)
+        o = observe(T, lms, st, pixel_sigma=0.5, rng=rng)
+        if blind is not None and blind[0] <= t <= blind[1]:
+            o = type(o)(o.ids[:0], o.uv[:0])
+        e = est.add_keyframe(_ns(t), o.ids, o.uv)
+        errs.append(np.linalg.norm(e.T_world_body[:3, 3] - T[:3, 3]))
+    return np.array(errs), est
+
+
+def test_smoother_recovers_trajectory_mm() -> None:
+    cfg = RunConfig(backend=BackendConfig(lag_s=3.0))
+    errs, est = _run_sim(cfg)
+    rmse = float(np.sqrt(np.mean(errs**2)))
+    assert rmse < 0.015, f"online ATE {rmse * 1000:.1f} mm"
+    np.testing.assert_allclose(est.state.bg, BG, atol=5e-4)
+    np.testing.assert_allclose(est.state.ba, BA, atol=0.03)
+    # old states were marginalised (fixed lag) while the estimates were kept
+    assert len(est.kf_estimates) == round(8.0 / 0.25)
+    poses, lms = est.final_batch()
+    m = lissajous_motion(8.0)
+    fe = [np.linalg.norm(T[:3, 3] - m.pose(k * 0.25)[:3, 3]) for k, T in poses.items()]
+    assert float(np.sqrt(np.mean(np.square(fe)))) < 0.015
+    assert len(lms) > 200
+
+
+def test_imu_bridges_blind_keyframes() -> None:
+    cfg = RunConfig(backend=BackendConfig(lag_s=3.0))
+    errs, _ = _run_sim(cfg, blind=(3.0, 3.5))
+    assert float(np.max(errs)) < 0.03
+
+
+def test_vision_bridges_imu_gap() -> None:
+    m = lissajous_motion(8.0)
+    imu = _noisy_imu(m)
+    keep = (imu.t_ns < _ns(3.0)) | (imu.t_ns > _ns(3.5))
+    gappy = ImuData(imu.t_ns[keep], imu.gyro[keep], imu.accel[keep])
+    cfg = RunConfig(backend=BackendConfig(lag_s=3.0))
+    errs, _ = _run_sim(cfg, imu=gappy)
+    assert float(np.sqrt(np.mean(errs**2))) < 0.02
+    assert float(np.max(errs)) < 0.04
+
+
+def test_visual_only_mode_runs() -> None:
+    cfg = RunConfig(backend=BackendConfig(lag_s=3.0))
+    errs, _ = _run_sim(cfg, use_imu=False, duration=4.0)
+    assert float(np.sqrt(np.mean(errs**2))) < 0.05
+
+
+def test_blind_without_imu_fails_loudly() -> None:
+    cfg = RunConfig(backend=BackendConfig(lag_s=3.0))
+    with pytest.raises(EstimatorFailure):
+        _run_sim(cfg, use_imu=False, duration=4.0, blind=(2.0, 2.5))
