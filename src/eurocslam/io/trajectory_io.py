@@ -376,6 +376,16 @@ def read_trajectory(
             )
         try:
             t[n] = to_ns(parts[0])
+        except OverflowError:
+            hint = (
+                "; it looks like nanoseconds but TUM time is seconds (pass --time-unit ns if "
+                "this file really holds nanoseconds)"
+                if unit == "s"
+                else ""
+            )
+            raise EvalError(
+                f"{path}:{i + 1}: timestamp '{parts[0]}' is out of range{hint}"
+            ) from None
         except _FractionalNs:
             if time_unit == "ns":
                 raise EvalError(
