@@ -423,7 +423,8 @@ def pose_stamped(t_ns: int, frame_id: str, T: F64) -> bytes:
 
 
 def path(t_ns: int, frame_id: str, stamps_ns: ArrayLike, poses: ArrayLike) -> bytes:
-    """nav_msgs/Path; `poses` is (N, 4, 4) transforms or (N, 7) [x y z qx qy qz qw]."""
+    """nav_msgs/Path; `poses` is (N, 4, 4) transforms or (N, 7) [x y z qx qy qz qw].
+    Vectorised: every PoseStamped after the first starts 8-aligned, so they share one layout."""
     st = np.asarray(stamps_ns, dtype=np.int64).reshape(-1)
     p = np.asarray(poses, dtype=np.float64)
     if p.ndim == 3:
@@ -433,9 +434,25 @@ def path(t_ns: int, frame_id: str, stamps_ns: ArrayLike, poses: ArrayLike) -> by
     out = CdrWriter()
     out.header(t_ns, frame_id)
     out.u32(st.size)
-    for ti, row in zip(st.tolist(), p, strict=True):
-        out.header(ti, frame_id)
-        out.f64_fixed(row, 7)
+    if st.size == 0:
+        return out.getvalue()
+    out.header(int(st[0]), frame_id)
+    out.f64_fixed(p[0], 7)
+    if st.size > 1:
+        fid = frame_id.encode() + b"\x00"
+        pad = -(12 + len(fid)) % 8
+        dt = np.dtype(
+            [("sec", "<i4"), ("nsec", "<u4"), ("len", "<u4"), ("fid", f"S{len(fid)}")]
+            + ([("pad", f"V{pad}")] if pad else [])
+            + [("pose", "<f8", (7,))]
+        )
+        rows = np.zeros(st.size - 1, dtype=dt)
+        rows["sec"] = st[1:] // _SEC
+        rows["nsec"] = st[1:] % _SEC
+        rows["len"] = len(fid)
+        rows["fid"] = fid
+        rows["pose"] = p[1:]
+        out.buf += rows.tobytes()
     return out.getvalue()
 
 

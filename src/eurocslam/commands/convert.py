@@ -1,0 +1,93 @@
+"""`eurocslam convert SEQUENCE -o out.mcap`: EuRoC ASL folder -> ROS 2 MCAP (Foxglove, ros2 bag)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+NAME = "convert"
+HELP = "convert an EuRoC sequence to a ROS 2 MCAP (images, camera_info, IMU, tf, ground truth)"
+
+
+def _time(value: str) -> float:
+    try:
+        v = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{value}' is not a number") from None
+    return v
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("sequence", help="sequence folder (containing mav0/) or its mav0/ folder")
+    parser.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        metavar="OUT.mcap",
+        help="output file (written as OUT.mcap.partial, renamed when complete)",
+    )
+    parser.add_argument(
+        "--compression",
+        choices=("zstd", "lz4", "none"),
+        default="zstd",
+        help="MCAP chunk compression (default zstd; lz4 is faster, larger)",
+    )
+    parser.add_argument(
+        "--images",
+        choices=("raw", "png", "jpeg"),
+        default="raw",
+        help="raw: sensor_msgs/Image mono8 on /camN/image_raw (default); png "
+        "(lossless) or jpeg: sensor_msgs/CompressedImage on "
+        "/camN/image_raw/compressed",
+    )
+    parser.add_argument(
+        "--start",
+        type=_time,
+        metavar="S",
+        help="first time to keep: seconds from the sequence start, or an absolute timestamp in ns",
+    )
+    parser.add_argument(
+        "--end", type=_time, metavar="S", help="last time to keep (same units as --start)"
+    )
+    parser.add_argument(
+        "--topics",
+        nargs="+",
+        metavar="TOPIC",
+        help="only these topics (default: all; see README 'MCAP topics')",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        metavar="N",
+        help="image decode/encode threads (default 2)",
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from eurocslam.convert import ConvertOptions, convert
+    from eurocslam.dataset import open_sequence
+    from eurocslam.errors import OutputError
+
+    if not str(args.output).endswith(".mcap"):
+        raise OutputError(f"{args.output}: the output name must end in .mcap")
+    source = open_sequence(args.sequence)
+    opts = ConvertOptions(
+        compression=args.compression,
+        images=args.images,
+        topics=frozenset(args.topics) if args.topics else None,
+        start=args.start,
+        end=args.end,
+        workers=max(1, args.workers),
+        progress=False if args.no_progress else None,
+    )
+    result = convert(source, args.output, opts)
+    for line in result.lines():
+        print(line)
+    if result.skips.total:
+        print(
+            f"note: {result.skips.total} item(s) skipped while reading (listed above)",
+            file=sys.stderr,
+        )
+    return 0
