@@ -1,0 +1,578 @@
+"""`StereoFrontend`: rectified stereo ORB features tracked against a local map of landmarks.
+
+Per frame: image check (missing / blank / saturated -> NO_IMAGE), rectification, grid ORB on
+both images, stereo matching, then tracking: project the local map with the predicted pose
+(the caller's, e.g. from the IMU, else a constant-velocity model), match by descriptor in a
+window, optimise the pose on stereo reprojection errors with outlier rejection (two passes,
+the second at the refined pose), recover with `cv2.solvePnPRansac` when the prediction fails,
+create landmarks at keyframes and cull unreliable ones.
+
+Two stages so both cores work: `extract(frame)` (decode is the reader's, then rectify, ORB,
+stereo matching) is thread-safe and pure; `track(features, prediction)` is sequential.
+`process(frame, prediction)` is both; `stream(frames)` runs extraction one frame ahead in a
+worker thread (OpenCV releases the GIL).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from eurocslam.dataset.calib import StereoRig
+from eurocslam.dataset.types import U8, StereoFrame
+from eurocslam.frontend.config import FrontendConfig
+from eurocslam.frontend.features import Features, OrbExtractor
+from eurocslam.frontend.matching import StereoMatches, match_stereo
+from eurocslam.frontend.stereo import StereoRectifier, triangulate_rect
+from eurocslam.frontend.tracking import (
+    LocalMap,
+    body_T_from_rect,
+    optimize_pose,
+    pnp_ransac,
+    project_map,
+    rect_T_from_body,
+    search_by_projection,
+)
+from eurocslam.frontend.types import FrontendResult, RectifiedStereo, TrackingState
+from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
+
+
+def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:
+    """Why an image cannot be tracked ('missing', 'black', 'saturated', 'blank'), or None."""
+    if img is None:
+        return "missing"
+    if img.ndim != 2 or img.size == 0:
+        return "missing"
+    sub = img[::4, ::4]
+    mean = float(sub.mean())
+    if mean < config.image_dark_mean:
+        return "black"
+    if mean > config.image_saturated_mean:
+        return "saturated"
+    if float(sub.std()) < config.image_min_std:
+        return "blank"
+    return None
+
+
+@dataclass(frozen=True)
+class FrameFeatures:
+    """Output of the extraction stage for one stereo frame."""
+
+    t_ns: int
+    problem: str | None  # None: usable; else why the frame is NO_IMAGE
+    left: Features
+    right: Features
+    stereo: StereoMatches
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class _VelocityModel:
+    """Constant body-frame twist, scaled by the time since the last pose."""
+
+    def __init__(self, max_v: float, max_w: float) -> None:
+        self.t_ns: int | None = None
+        self.T: F64 | None = None
+        self.v = np.zeros(3)  # m/s, body frame
+        self.w = np.zeros(3)  # rad/s, body frame
+        self.max_v, self.max_w = max_v, max_w
+
+    def update(self, t_ns: int, T_world_body: F64) -> None:
+        if self.T is not None and self.t_ns is not None and t_ns > self.t_ns:
+            dt = (t_ns - self.t_ns) * 1e-9
+            d = inv_T(self.T) @ T_world_body
+            v = d[:3, 3] / dt
+            w = so3_log(d[:3, :3]) / dt
+            if np.linalg.norm(v) <= self.max_v and np.linalg.norm(w) <= self.max_w:
+                self.v, self.w = v, w
+            else:
+                self.v, self.w = np.zeros(3), np.zeros(3)
+        self.t_ns, self.T = t_ns, T_world_body.copy()
+
+    def shift(self, T_new_old: F64) -> None:
+        """Apply a world correction (the backend moved the last pose)."""
+        if self.T is not None:
+            self.T = T_new_old @ self.T
+
+    def reset_motion(self) -> None:
+        self.v, self.w = np.zeros(3), np.zeros(3)
+
+    def predict(self, t_ns: int) -> F64 | None:
+        if self.T is None or self.t_ns is None:
+            return None
+        dt = max(0.0, (t_ns - self.t_ns) * 1e-9)
+        return self.T @ make_T(so3_exp(self.w * dt), self.v * dt)
+
+
+class StereoFrontend:
+    """Stereo ORB frontend. See the module docstring; `FrontendConfig` holds every parameter."""
+
+    def __init__(
+        self,
+        rig: StereoRig,
+        config: FrontendConfig | None = None,
+        T_world_body_init: F64 | None = None,
+        first_landmark_id: int = 0,
+    ) -> None:
+        self.config = config or FrontendConfig()
+        self.config.validate()
+        self.rig = rig
+        self._rectifier = StereoRectifier(rig, self.config.rectify_alpha)
+        g = self._rectifier.geometry
+        self._T_body_rect0 = g.T_body_rect0
+        self._local = threading.local()
+        self.scale = self.config.orb_scale_factor ** np.arange(self.config.orb_levels)
+        self.map = LocalMap(first_landmark_id)
+        self._T_init = None if T_world_body_init is None else np.asarray(T_world_body_init, float)
+        self._motion = _VelocityModel(
+            self.config.max_velocity_m_s, self.config.max_angular_velocity_rad_s
+        )
+        self.frame_index = -1
+        self._initialized = False
+        self._lost_count = 0
+        self._last_kf_t_ns: int | None = None
+        self._ref_kf_tracked = 0
+        self.last_T_world_body: F64 | None = None
+
+    # ---- public interface ------------------------------------------------------------------
+    @property
+    def rectified(self) -> RectifiedStereo:
+        return self._rectifier.geometry
+
+    @property
+    def rectifier(self) -> StereoRectifier:
+        return self._rectifier
+
+    def process(self, frame: StereoFrame, T_world_body_pred: F64 | None = None) -> FrontendResult:
+        return self.track(self.extract(frame), T_world_body_pred)
+
+    def stream(self, frames: Iterable[StereoFrame]) -> Iterator[tuple[StereoFrame, FrameFeatures]]:
+        """Yield (frame, features) with frame k+1 read, decoded and extracted in a worker thread
+        while the caller tracks frame k. Order is preserved; `prefetch=False` runs inline."""
+        it = iter(frames)
+        if not self.config.prefetch:
+            for fr in it:
+                yield fr, self.extract(fr)
+            return
+
+        def job() -> tuple[StereoFrame, FrameFeatures] | None:
+            t0 = time.perf_counter()
+            try:
+                fr = next(it)
+            except StopIteration:
+                return None
+            dec = (time.perf_counter() - t0) * 1e3
+            ff = self.extract(fr)
+            ff.timings_ms["decode"] = dec
+            return fr, ff
+
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="frontend-extract") as pool:
+            fut: Future = pool.submit(job)
+            while True:
+                item = fut.result()
+                if item is None:
+                    return
+                fut = pool.submit(job)
+                yield item
+
+    def landmark_positions(self, ids: NDArray[np.int64]) -> F64:
+        """World positions (N, 3) of landmark ids; NaN rows for ids no longer in the map."""
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        rows = self.map.index_of(ids)
+        out = np.full((ids.size, 3), np.nan)
+        ok = rows >= 0
+        out[ok] = self.map.xyz[rows[ok]]
+        return out
+
+    def correct(
+        self,
+        T_world_body: F64,
+        landmarks: dict[int, F64] | tuple[NDArray[np.int64], F64] | None = None,
+    ) -> None:
+        """Adopt the backend's optimised pose of the *last processed frame* and landmark
+        positions (dict id -> xyz, or (ids, (N, 3))). Unknown ids are ignored."""
+        T_new = np.asarray(T_world_body, dtype=np.float64)
+        if self.last_T_world_body is not None:
+            self._motion.shift(T_new @ inv_T(self.last_T_world_body))
+        self.last_T_world_body = T_new.copy()
+        if landmarks is None:
+            return
+        if isinstance(landmarks, dict):
+            if not landmarks:
+                return
+            ids = np.fromiter(landmarks.keys(), dtype=np.int64, count=len(landmarks))
+            xyz = np.array([landmarks[int(i)] for i in ids], dtype=np.float64).reshape(-1, 3)
+        else:
+            ids = np.asarray(landmarks[0], dtype=np.int64).reshape(-1)
+            xyz = np.asarray(landmarks[1], dtype=np.float64).reshape(-1, 3)
+        rows = self.map.index_of(ids)
+        ok = (rows >= 0) & np.all(np.isfinite(xyz), axis=1)
+        self.map.xyz[rows[ok]] = xyz[ok]
+
+    # ---- stage 1: extraction (thread-safe) ---------------------------------------------------
+    def _extractor(self) -> OrbExtractor:
+        ex = getattr(self._local, "orb", None)
+        if ex is None:
+            g = self.rectified
+            ex = OrbExtractor(self.config, g.width, g.height)
+            self._local.orb = ex
+        return ex
+
+    def extract(self, frame: StereoFrame) -> FrameFeatures:
+        c = self.config
+        timings: dict[str, float] = {}
+        problem = image_problem(frame.left, c) or image_problem(frame.right, c)
+        g = self.rectified
+        if problem is None and (
+            frame.left.shape != (g.height, g.width) or frame.right.shape != (g.height, g.width)
+        ):
+            problem = "size"
+        if problem is not None:
+            e = Features.empty()
+            return FrameFeatures(frame.t_ns, problem, e, e, StereoMatches(*_no_stereo(0)), timings)
+        t0 = time.perf_counter()
+        left = self._rectifier.rectify_left(frame.left)
+        right = self._rectifier.rectify_right(frame.right)
+        t1 = time.perf_counter()
+        ex = self._extractor()
+        fl = ex.extract(left)
+        fr = ex.extract(right)
+        t2 = time.perf_counter()
+        sm = match_stereo(fl, fr, left, right, self.scale, c, g)
+        t3 = time.perf_counter()
+        timings.update(
+            rectify=(t1 - t0) * 1e3, orb=(t2 - t1) * 1e3, stereo_matching=(t3 - t2) * 1e3
+        )
+        return FrameFeatures(frame.t_ns, None, fl, fr, sm, timings)
+
+    # ---- stage 2: tracking (sequential) -----------------------------------------------------
+    def track(self, ff: FrameFeatures, T_world_body_pred: F64 | None = None) -> FrontendResult:
+        self.frame_index += 1
+        timings = dict(ff.timings_ms)
+        t0 = time.perf_counter()
+        if T_world_body_pred is None:
+            pred = self._motion.predict(ff.t_ns)
+        else:
+            pred = np.asarray(T_world_body_pred, dtype=np.float64)
+        if ff.problem is not None:
+            return self._result(ff, TrackingState.NO_IMAGE, None, timings, t0)
+        if not self._initialized:
+            return self._initialize(ff, pred, timings, t0)
+        if pred is None:  # initialised but never had a pose: cannot happen; be safe
+            pred = self.last_T_world_body if self.last_T_world_body is not None else np.eye(4)
+        T_world_body, inlier_rows, inlier_kps = self._track_local_map(
+            ff, pred, T_world_body_pred is not None, timings
+        )
+        if T_world_body is None:
+            self._lost_count += 1
+            if self._lost_count >= self.config.reinit_after_lost_frames:
+                # re-create the map from stereo at the best available pose
+                return self._initialize(ff, pred, timings, t0, reinit=True)
+            return self._result(ff, TrackingState.LOST, None, timings, t0)
+        self._lost_count = 0
+        self._motion.update(ff.t_ns, T_world_body)
+        self.last_T_world_body = T_world_body
+        m = self.map
+        m.n_found[inlier_rows] += 1
+        m.last_seen[inlier_rows] = self.frame_index
+        m.desc[inlier_rows] = ff.left.desc[inlier_kps]
+        is_kf = self._need_keyframe(ff, inlier_rows, inlier_kps)
+        ids = m.ids[inlier_rows]
+        uv = self._stereo_uv(ff, inlier_kps)
+        tracked = np.zeros(len(ff.left), dtype=bool)
+        tracked[inlier_kps] = True
+        n_tracked = int(inlier_rows.size)
+        if is_kf:
+            new_ids, new_kps = self._create_landmarks(ff, T_world_body, tracked)
+            ids = np.concatenate([ids, new_ids])
+            uv = np.concatenate([uv, self._stereo_uv(ff, new_kps)])
+            m.kf_uv[:] = np.nan
+            rows = m.index_of(ids)
+            m.kf_uv[rows] = ff.left.uv[np.concatenate([inlier_kps, new_kps])]
+            self._last_kf_t_ns = ff.t_ns
+            self._ref_kf_tracked = n_tracked
+        self._cull()
+        return self._result(
+            ff,
+            TrackingState.OK,
+            T_world_body,
+            timings,
+            t0,
+            ids=ids,
+            uv=uv,
+            is_kf=is_kf,
+            tracked=tracked,
+            n_tracked=n_tracked,
+        )
+
+    # ---- internals --------------------------------------------------------------------------
+    def _stereo_uv(self, ff: FrameFeatures, kps: NDArray[np.intp]) -> F64:
+        return np.column_stack([ff.left.uv[kps, 0], ff.stereo.uR[kps], ff.left.uv[kps, 1]]).reshape(
+            -1, 3
+        )
+
+    def _initialize(
+        self,
+        ff: FrameFeatures,
+        pred: F64 | None,
+        timings: dict[str, float],
+        t0: float,
+        reinit: bool = False,
+    ) -> FrontendResult:
+        if pred is not None:
+            T_world_body = pred
+        elif self._T_init is not None:
+            T_world_body = self._T_init
+        else:
+            T_world_body = np.eye(4)
+        n_stereo = int(ff.stereo.valid.sum())
+        if n_stereo < self.config.min_tracked:
+            # too few stereo points to start a map: keep waiting (pose unknown when lost)
+            state = TrackingState.LOST if reinit else TrackingState.INIT
+            return self._result(ff, state, None, timings, t0)
+        self.map.clear()
+        self._motion.reset_motion()
+        ids, kps = self._create_landmarks(
+            ff, T_world_body, np.zeros(len(ff.left), dtype=bool), limit=None
+        )
+        self.map.kf_uv[:] = ff.left.uv[kps]
+        self._initialized = True
+        self._lost_count = 0
+        self._motion.update(ff.t_ns, T_world_body)
+        self.last_T_world_body = T_world_body.copy()
+        self._last_kf_t_ns = ff.t_ns
+        self._ref_kf_tracked = int(ids.size)
+        tracked = np.zeros(len(ff.left), dtype=bool)
+        return self._result(
+            ff,
+            TrackingState.INIT,
+            T_world_body,
+            timings,
+            t0,
+            ids=ids,
+            uv=self._stereo_uv(ff, kps),
+            is_kf=True,
+            tracked=tracked,
+            n_tracked=0,
+        )
+
+    def _create_landmarks(
+        self,
+        ff: FrameFeatures,
+        T_world_body: F64,
+        used: NDArray[np.bool_],
+        limit: int | None = -1,
+    ) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
+        """New landmarks from stereo keypoints not already tracked, closest first."""
+        if limit == -1:
+            limit = self.config.max_new_landmarks_per_keyframe
+        cand = np.nonzero(ff.stereo.valid & ~used)[0]
+        if cand.size == 0:
+            return np.zeros(0, np.int64), cand
+        cand = cand[np.argsort(ff.stereo.depth[cand], kind="stable")]
+        if limit is not None:
+            cand = cand[:limit]
+        g = self.rectified
+        uv = ff.left.uv[cand]
+        p_rect = triangulate_rect(uv[:, 0], ff.stereo.uR[cand], uv[:, 1], g)
+        T_world_rect0 = T_world_body @ self._T_body_rect0
+        xyz = p_rect @ T_world_rect0[:3, :3].T + T_world_rect0[:3, 3]
+        ids = self.map.add(
+            xyz,
+            ff.left.desc[cand],
+            ff.left.octave[cand],
+            np.full((cand.size, 2), np.nan),
+            self.frame_index,
+        )
+        return ids, cand
+
+    def _match_and_optimize(
+        self,
+        ff: FrameFeatures,
+        tree: cKDTree,
+        T_rc: F64,
+        radius: float,
+        sigma_all: F64,
+    ) -> tuple[F64, NDArray[np.intp], NDArray[np.intp], int]:
+        """Projection search at T_rc, then pose optimisation. (T, inlier rows, kps, n_matched)."""
+        c, g, m = self.config, self.rectified, self.map
+        proj = project_map(T_rc, m.xyz, g)
+        rows_vis = np.nonzero(proj.in_view)[0]
+        rows, kps, _ = search_by_projection(
+            proj,
+            rows_vis,
+            m.desc,
+            m.octave,
+            ff.left,
+            ff.stereo.uR,
+            tree,
+            self.scale,
+            radius,
+            c.track_max_hamming,
+            c.track_ratio,
+        )
+        if rows.size < c.min_tracked:
+            return T_rc, rows[:0], kps[:0], int(rows.size)
+        meas = self._stereo_uv(ff, kps)
+        T_opt, inl, _ = optimize_pose(
+            T_rc, m.xyz[rows], meas, sigma_all[kps], g, c.pose_chi2_stereo, c.pose_chi2_mono
+        )
+        return T_opt, rows[inl], kps[inl], int(rows.size)
+
+    def _track_local_map(
+        self, ff: FrameFeatures, pred: F64, have_pred: bool, timings: dict[str, float]
+    ) -> tuple[F64 | None, NDArray[np.intp], NDArray[np.intp]]:
+        c, g, m = self.config, self.rectified, self.map
+        empty = np.zeros(0, np.intp)
+        if len(m) == 0 or len(ff.left) == 0:
+            return None, empty, empty
+        tree = cKDTree(ff.left.uv)
+        sigma_all = self.scale[np.clip(ff.left.octave, 0, self.scale.size - 1)]
+        T_pred_rc = rect_T_from_body(pred, self._T_body_rect0)
+        # predicted-visible statistics for culling
+        proj = project_map(T_pred_rc, m.xyz, g)
+        m.n_visible[proj.in_view] += 1
+        t0 = time.perf_counter()
+        pnp_ms = 0.0
+        # pass 1: at the prediction (wider window without an external prediction)
+        r1 = c.track_radius_px * (1.0 if have_pred else 1.5)
+        T_rc, rows, kps, n_match = self._match_and_optimize(ff, tree, T_pred_rc, r1, sigma_all)
+        if rows.size < c.min_tracked:
+            T_rc, rows, kps, n_match = self._match_and_optimize(
+                ff, tree, T_pred_rc, 3.0 * c.track_radius_px, sigma_all
+            )
+        if rows.size < max(c.min_tracked, n_match // 2):
+            # verify / recover: descriptor matching against the whole local map + PnP RANSAC
+            tp = time.perf_counter()
+            T_pnp = self._relocalize(ff, T_pred_rc)
+            pnp_ms += (time.perf_counter() - tp) * 1e3
+            if T_pnp is not None:
+                T2, rows2, kps2, _ = self._match_and_optimize(
+                    ff, tree, T_pnp, c.track_radius_px, sigma_all
+                )
+                if rows2.size > rows.size:
+                    T_rc, rows, kps = T2, rows2, kps2
+        if rows.size < c.min_tracked:
+            timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
+            timings["pnp"] = pnp_ms
+            return None, empty, empty
+        # pass 2: refined pose, tight window, every visible landmark
+        T2, rows2, kps2, _ = self._match_and_optimize(
+            ff, tree, T_rc, 0.5 * c.track_radius_px, sigma_all
+        )
+        if rows2.size >= rows.size * 0.8 and rows2.size >= c.min_tracked:
+            T_rc, rows, kps = T2, rows2, kps2
+        timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
+        timings["pnp"] = pnp_ms
+        return body_T_from_rect(T_rc, self._T_body_rect0), rows, kps
+
+    def _relocalize(self, ff: FrameFeatures, T_guess_rc: F64) -> F64 | None:
+        """Match frame descriptors to every local-map landmark (ratio test), PnP RANSAC."""
+        c, m = self.config, self.map
+        if len(m) < 6 or len(ff.left) < 6:
+            return None
+        bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+        knn = bf.knnMatch(ff.left.desc, m.desc, k=2)
+        q, t = [], []
+        for pair in knn:
+            if (
+                len(pair) == 2
+                and pair[0].distance < 0.8 * pair[1].distance
+                and (pair[0].distance <= c.track_max_hamming)
+            ):
+                q.append(pair[0].queryIdx)
+                t.append(pair[0].trainIdx)
+        if len(q) < c.min_tracked:
+            return None
+        qi, ti = np.array(q), np.array(t)
+        T, inl = pnp_ransac(
+            m.xyz[ti],
+            ff.left.uv[qi],
+            self.rectified,
+            None,
+            c.pnp_reprojection_px,
+            c.pnp_iterations,
+        )
+        if T is None or inl.sum() < c.min_tracked:
+            return None
+        return T
+
+    def _need_keyframe(
+        self, ff: FrameFeatures, rows: NDArray[np.intp], kps: NDArray[np.intp]
+    ) -> bool:
+        c = self.config
+        n = rows.size
+        if self._last_kf_t_ns is None:
+            return True
+        if (ff.t_ns - self._last_kf_t_ns) * 1e-9 >= c.kf_max_interval_s:
+            return True
+        if n < c.kf_min_tracked or n < c.kf_min_tracked_ratio * self._ref_kf_tracked:
+            return True
+        kf_uv = self.map.kf_uv[rows]
+        seen = np.all(np.isfinite(kf_uv), axis=1)
+        if seen.sum() >= 10:
+            shift = np.linalg.norm(ff.left.uv[kps[seen]] - kf_uv[seen], axis=1)
+            if float(np.median(shift)) > c.kf_parallax_px:
+                return True
+        return False
+
+    def _cull(self) -> None:
+        c, m = self.config, self.map
+        if len(m) == 0:
+            return
+        keep = (self.frame_index - m.last_seen) <= c.landmark_max_unseen_frames
+        ratio_bad = (m.n_visible >= c.landmark_min_visible_for_ratio) & (
+            m.n_found < c.landmark_min_found_ratio * m.n_visible
+        )
+        keep &= ~ratio_bad
+        if keep.sum() > c.max_landmarks:
+            # keep the most recently seen
+            idx = np.nonzero(keep)[0]
+            order = np.argsort(-m.last_seen[idx], kind="stable")
+            keep[:] = False
+            keep[idx[order[: c.max_landmarks]]] = True
+        if not keep.all():
+            m.keep(keep)
+
+    def _result(
+        self,
+        ff: FrameFeatures,
+        state: TrackingState,
+        T_world_body: F64 | None,
+        timings: dict[str, float],
+        t0: float,
+        ids: NDArray[np.int64] | None = None,
+        uv: F64 | None = None,
+        is_kf: bool = False,
+        tracked: NDArray[np.bool_] | None = None,
+        n_tracked: int = 0,
+    ) -> FrontendResult:
+        t_draw = time.perf_counter()
+        draw = self._rectifier.rect0_to_raw(ff.left.uv) if len(ff.left) else np.zeros((0, 2))
+        timings["draw"] = (time.perf_counter() - t_draw) * 1e3
+        timings["track_total"] = (time.perf_counter() - t0) * 1e3
+        return FrontendResult(
+            t_ns=ff.t_ns,
+            state=state,
+            landmark_ids=np.zeros(0, np.int64) if ids is None else ids.astype(np.int64),
+            stereo_uv=np.zeros((0, 3)) if uv is None else uv,
+            T_world_body=None if T_world_body is None else T_world_body.copy(),
+            is_keyframe=is_kf,
+            n_features=len(ff.left),
+            n_stereo=int(ff.stereo.valid.sum()),
+            n_tracked=n_tracked,
+            draw_uv=draw,
+            draw_tracked=tracked if tracked is not None else np.zeros(len(ff.left), dtype=bool),
+            timings_ms=timings,
+        )
+
+
+def _no_stereo(n: int) -> tuple[F64, F64, NDArray[np.intp]]:
+    return np.full(n, np.nan), np.full(n, np.nan), np.full(n, -1, dtype=np.intp)

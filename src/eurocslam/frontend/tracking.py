@@ -1,0 +1,306 @@
+"""Temporal tracking: the local map, projection search, pose-only optimisation, PnP recovery.
+
+Poses inside this module are `T_rect0_world` (world -> rectified left camera), the form the
+projection needs; `StereoFrontend` converts to and from `T_world_body`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from eurocslam.frontend.features import Features, hamming
+from eurocslam.frontend.types import RectifiedStereo
+from eurocslam.geometry import F64, inv_T, make_T, so3_exp
+
+I64 = NDArray[np.int64]
+
+
+class LocalMap:
+    """Landmarks with persistent int64 ids, kept sorted by id (ids only ever grow)."""
+
+    def __init__(self, first_id: int = 0) -> None:
+        self.next_id = int(first_id)
+        self.ids: I64 = np.zeros(0, np.int64)
+        self.xyz: F64 = np.zeros((0, 3))  # world frame
+        self.desc: NDArray[np.uint8] = np.zeros((0, 32), np.uint8)
+        self.octave: NDArray[np.int32] = np.zeros(0, np.int32)
+        self.n_visible: I64 = np.zeros(0, np.int64)  # predicted inside the image
+        self.n_found: I64 = np.zeros(0, np.int64)  # matched as a pose inlier
+        self.last_seen: I64 = np.zeros(0, np.int64)  # frame index of the last inlier match
+        self.kf_uv: F64 = np.zeros((0, 2))  # pixel position at the last keyframe (NaN: unseen)
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+    def add(
+        self, xyz: F64, desc: NDArray[np.uint8], octave: NDArray[np.int32], uv: F64, frame: int
+    ) -> I64:
+        n = xyz.shape[0]
+        ids = np.arange(self.next_id, self.next_id + n, dtype=np.int64)
+        self.next_id += n
+        self.ids = np.concatenate([self.ids, ids])
+        self.xyz = np.concatenate([self.xyz, xyz])
+        self.desc = np.concatenate([self.desc, desc])
+        self.octave = np.concatenate([self.octave, octave.astype(np.int32)])
+        self.n_visible = np.concatenate([self.n_visible, np.ones(n, np.int64)])
+        self.n_found = np.concatenate([self.n_found, np.ones(n, np.int64)])
+        self.last_seen = np.concatenate([self.last_seen, np.full(n, frame, np.int64)])
+        self.kf_uv = np.concatenate([self.kf_uv, uv])
+        return ids
+
+    def keep(self, mask: NDArray[np.bool_]) -> None:
+        for name in ("ids", "xyz", "desc", "octave", "n_visible", "n_found", "last_seen", "kf_uv"):
+            setattr(self, name, getattr(self, name)[mask])
+
+    def clear(self) -> None:
+        self.keep(np.zeros(len(self), dtype=bool))
+
+    def index_of(self, ids: I64) -> NDArray[np.intp]:
+        """Row of each id, -1 when the id is not (or no longer) in the map."""
+        ids = np.asarray(ids, dtype=np.int64)
+        pos = np.searchsorted(self.ids, ids)
+        pos = np.clip(pos, 0, max(len(self) - 1, 0))
+        found = (len(self) > 0) & (self.ids[pos] == ids) if len(self) else np.zeros(ids.shape, bool)
+        return np.where(found, pos, -1)
+
+
+def rect_T_from_body(T_world_body: F64, T_body_rect0: F64) -> F64:
+    """T_rect0_world from T_world_body."""
+    return inv_T(T_world_body @ T_body_rect0)
+
+
+def body_T_from_rect(T_rect0_world: F64, T_body_rect0: F64) -> F64:
+    """T_world_body from T_rect0_world."""
+    return inv_T(T_rect0_world) @ inv_T(T_body_rect0)
+
+
+@dataclass(frozen=True)
+class Projection:
+    uv: F64  # (N, 2) predicted left pixels
+    uR: F64  # (N,) predicted right column
+    in_view: NDArray[np.bool_]  # in front of the camera and inside the image
+
+
+def project_map(
+    T_rect0_world: F64, xyz: F64, geom: RectifiedStereo, margin: float = 2.0
+) -> Projection:
+    pc = xyz @ T_rect0_world[:3, :3].T + T_rect0_world[:3, 3]
+    z = pc[:, 2]
+    front = z > 0.1
+    zs = np.where(front, z, 1.0)
+    u = geom.fx * pc[:, 0] / zs + geom.cx
+    v = geom.fy * pc[:, 1] / zs + geom.cy
+    uR = u - geom.fx * geom.baseline / zs
+    in_view = (
+        front
+        & (u >= margin)
+        & (u < geom.width - margin)
+        & (v >= margin)
+        & (v < geom.height - margin)
+    )
+    return Projection(np.column_stack([u, v]), uR, in_view)
+
+
+def search_by_projection(
+    proj: Projection,
+    lm_rows: NDArray[np.intp],
+    lm_desc: NDArray[np.uint8],
+    lm_octave: NDArray[np.int32],
+    feats: Features,
+    feat_uR: F64,
+    tree: cKDTree,
+    scale: F64,
+    radius_px: float,
+    max_hamming: int,
+    ratio: float,
+    taken: NDArray[np.bool_] | None = None,
+    k: int = 10,
+) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.int32]]:
+    """Match projected landmarks (rows `lm_rows` of the projection) to keypoints nearby.
+
+    Returns (landmark rows, keypoint indices, distances); each keypoint used at most once.
+    """
+    empty = (np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0, np.int32))
+    if lm_rows.size == 0 or len(feats) == 0:
+        return empty
+    k = min(k, len(feats))
+    radius = radius_px * scale[np.clip(lm_octave[lm_rows], 0, scale.size - 1)]
+    d_px, nn = tree.query(proj.uv[lm_rows], k=k, distance_upper_bound=float(radius.max()))
+    d_px = d_px.reshape(lm_rows.size, k)
+    nn = nn.reshape(lm_rows.size, k)
+    valid = np.isfinite(d_px) & (nn < len(feats))
+    nn = np.where(valid, nn, 0)
+    valid &= d_px <= radius[:, None]
+    valid &= np.abs(feats.octave[nn] - lm_octave[lm_rows][:, None]) <= 2
+    # stereo consistency when both sides know a right column
+    kp_uR = feat_uR[nn]
+    pred_uR = proj.uR[lm_rows][:, None]
+    with np.errstate(invalid="ignore"):
+        valid &= ~(np.abs(kp_uR - pred_uR) > radius[:, None])
+    if taken is not None:
+        valid &= ~taken[nn]
+    dist = np.full(valid.shape, 1 << 20, dtype=np.int32)
+    vi, vj = np.nonzero(valid)
+    dist[vi, vj] = hamming(lm_desc[lm_rows[vi]], feats.desc[nn[vi, vj]])
+    order = np.argsort(dist, axis=1)
+    r = np.arange(lm_rows.size)
+    b = order[:, 0]
+    best = dist[r, b]
+    best_kp = nn[r, b]
+    if k > 1:
+        second = dist[r, order[:, 1]]
+        # a second candidate at the same keypoint position (another octave) is not a rival
+        second_kp = nn[r, order[:, 1]]
+        same_spot = np.linalg.norm(feats.uv[second_kp] - feats.uv[best_kp], axis=1) < 2.0
+        second = np.where(same_spot, 1 << 20, second)
+    else:
+        second = np.full(lm_rows.size, 1 << 20)
+    ok = (best <= max_hamming) & (best < ratio * second)
+    rows, kps, dists = lm_rows[ok], best_kp[ok], best[ok]
+    if rows.size == 0:
+        return empty
+    # one landmark per keypoint: keep the smallest distance
+    order2 = np.lexsort((dists, kps))
+    kp_s = kps[order2]
+    first = np.ones(kp_s.size, dtype=bool)
+    first[1:] = kp_s[1:] != kp_s[:-1]
+    sel = order2[first]
+    return rows[sel], kps[sel], dists[sel]
+
+
+def optimize_pose(
+    T_rect0_world: F64,
+    xyz: F64,
+    meas: F64,
+    sigma: F64,
+    geom: RectifiedStereo,
+    chi2_stereo: float,
+    chi2_mono: float,
+    rounds: int = 4,
+    iterations: int = 10,
+) -> tuple[F64, NDArray[np.bool_], F64]:
+    """Motion-only Gauss-Newton on stereo (uL, uR, v) reprojection errors (uR NaN: mono).
+
+    ORB-SLAM's schedule: `rounds` rounds of Huber-weighted iterations; after each round every
+    measurement is re-classified by its chi-square (outliers get zero weight, may come back),
+    the robust kernel is dropped in the last round. `sigma` is the pixel sigma per measurement
+    (octave scale). Returns (T_rect0_world, inlier mask, chi2 per measurement).
+    """
+    T = T_rect0_world.copy()
+    n = xyz.shape[0]
+    inlier = np.ones(n, dtype=bool)
+    chi2 = np.zeros(n)
+    if n == 0:
+        return T, inlier, chi2
+    stereo = np.isfinite(meas[:, 1])
+    meas_f = np.where(np.isfinite(meas), meas, 0.0)
+    inv_s2 = 1.0 / (sigma * sigma)
+    thr = np.where(stereo, chi2_stereo, chi2_mono)
+    comp_w = np.column_stack([np.ones(n), stereo.astype(float), np.ones(n)])
+    fx, fy, b = geom.fx, geom.fy, geom.baseline
+    for rnd in range(rounds):
+        robust = rnd < rounds - 1
+        for _ in range(iterations):
+            pc = xyz @ T[:3, :3].T + T[:3, 3]
+            z = pc[:, 2]
+            good = inlier & (z > 0.05)
+            zs = np.where(z > 0.05, z, 1.0)
+            iz = 1.0 / zs
+            u = fx * pc[:, 0] * iz + geom.cx
+            uR = u - fx * b * iz
+            v = fy * pc[:, 1] * iz + geom.cy
+            res = (np.column_stack([u, uR, v]) - meas_f) * comp_w
+            e2 = (res * res).sum(axis=1) * inv_s2
+            w = inv_s2 * good
+            if robust:
+                delta2 = thr
+                big = e2 > delta2
+                w = np.where(big, w * np.sqrt(delta2 / np.maximum(e2, 1e-12)), w)
+            if good.sum() < 4:
+                break
+            # J = d(u, uR, v)/d(pc) @ [I, -[pc]x] for pc' = exp(dw) pc + dt, written out
+            X, Y = pc[:, 0], pc[:, 1]
+            a = fx * iz
+            c = fy * iz
+            du_dz = -fx * X * iz * iz
+            duR_dz = -fx * (X - b) * iz * iz
+            dv_dz = -fy * Y * iz * iz
+            Z = pc[:, 2]
+            J = np.zeros((n, 3, 6))
+            # translation columns
+            J[:, 0, 0] = a
+            J[:, 0, 2] = du_dz
+            J[:, 1, 0] = a
+            J[:, 1, 2] = duR_dz
+            J[:, 2, 1] = c
+            J[:, 2, 2] = dv_dz
+            # rotation columns: j . (-[pc]x) = pc x j
+            J[:, 0, 3], J[:, 0, 4], J[:, 0, 5] = Y * du_dz, Z * a - X * du_dz, -Y * a
+            J[:, 1, 3], J[:, 1, 4], J[:, 1, 5] = Y * duR_dz, Z * a - X * duR_dz, -Y * a
+            J[:, 2, 3], J[:, 2, 4], J[:, 2, 5] = Y * dv_dz - Z * c, -X * dv_dz, X * c
+            J *= comp_w[:, :, None]
+            Jw = J * w[:, None, None]
+            H = np.einsum("nki,nkj->ij", Jw, J, optimize=False)
+            g = np.einsum("nki,nk->i", Jw, res, optimize=False)
+            try:
+                dx = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
+            except np.linalg.LinAlgError:
+                break
+            dR = so3_exp(dx[3:])
+            T = make_T(dR @ T[:3, :3], dR @ T[:3, 3] + dx[:3])
+            if np.linalg.norm(dx) < 1e-6:
+                break
+        pc = xyz @ T[:3, :3].T + T[:3, 3]
+        z = pc[:, 2]
+        zs = np.where(z > 0.05, z, 1.0)
+        u = fx * pc[:, 0] / zs + geom.cx
+        uR = u - fx * b / zs
+        v = fy * pc[:, 1] / zs + geom.cy
+        res = (np.column_stack([u, uR, v]) - meas_f) * comp_w
+        chi2 = (res * res).sum(axis=1) * inv_s2
+        inlier = (chi2 < thr) & (z > 0.05)
+    return T, inlier, chi2
+
+
+def pnp_ransac(
+    xyz: F64,
+    uv: F64,
+    geom: RectifiedStereo,
+    T_guess: F64 | None,
+    reproj_px: float,
+    iterations: int,
+) -> tuple[F64 | None, NDArray[np.bool_]]:
+    """`cv2.solvePnPRansac` on world points vs rectified left pixels. (T_rect0_world, inliers)."""
+    n = xyz.shape[0]
+    inl = np.zeros(n, dtype=bool)
+    if n < 6:
+        return None, inl
+    K = np.array([[geom.fx, 0, geom.cx], [0, geom.fy, geom.cy], [0, 0, 1.0]])
+    kwargs = {}
+    if T_guess is not None:
+        rvec0, _ = cv2.Rodrigues(T_guess[:3, :3])
+        kwargs = {"useExtrinsicGuess": True, "rvec": rvec0, "tvec": T_guess[:3, 3].reshape(3, 1)}
+    try:
+        ok, rvec, tvec, idx = cv2.solvePnPRansac(
+            xyz.astype(np.float64),
+            uv.astype(np.float64),
+            K,
+            None,
+            iterationsCount=iterations,
+            reprojectionError=reproj_px,
+            confidence=0.999,
+            flags=cv2.SOLVEPNP_EPNP if T_guess is None else cv2.SOLVEPNP_ITERATIVE,
+            **kwargs,
+        )
+    except cv2.error:
+        return None, inl
+    if not ok or idx is None or len(idx) < 6:
+        return None, inl
+    inl[idx.reshape(-1)] = True
+    R, _ = cv2.Rodrigues(rvec)
+    return make_T(R, tvec.reshape(3)), inl
