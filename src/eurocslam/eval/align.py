@@ -74,7 +74,8 @@ def umeyama(x: F64, y: F64, with_scale: bool) -> tuple[F64, F64, float]:
     sigma_x = float(np.sum(xc * xc)) / n
     cov = yc.T @ xc / n
     u, d, vt = np.linalg.svd(cov)
-    if np.count_nonzero(d > np.finfo(d.dtype).eps) < 2:
+    # evo's rank test, plus a relative one: exactly collinear points give d[1] ~ 1e-16 * d[0]
+    if np.count_nonzero(d > np.finfo(d.dtype).eps) < 2 or d[1] <= 1e-12 * d[0]:
         raise EvalError(
             "alignment is degenerate: the matched positions are (nearly) collinear or static; "
             "use --align origin or --align none"

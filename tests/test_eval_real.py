@@ -1,0 +1,93 @@
+"""Evaluator on real EuRoC data against evo's saved results (skips when the data is absent)."""
+
+from __future__ import annotations
+
+import copy
+import io
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eurocslam.eval.evaluate import EvalConfig, evaluate
+from eurocslam.eval.loaders import load_estimates, load_groundtruth
+
+
+def _evo_zip(path: Path) -> tuple[dict, np.ndarray, np.ndarray]:
+    with zipfile.ZipFile(path) as z:
+        stats = json.loads(z.read("stats.json"))
+        err = np.load(io.BytesIO(z.read("error_array.npy")))
+        stamps = np.load(io.BytesIO(z.read("timestamps.npy")))
+    return stats, err, stamps
+
+
+@pytest.fixture(scope="module")
+def vins(euroc_dir: Path):
+    d = euroc_dir / "eval_reference/vins_mono_MH_01"
+    gt = load_groundtruth(d / "ground_truth.tum").traj
+    est = load_estimates(d / "vins_tum.txt")[0].traj
+    return d, evaluate(gt, est, EvalConfig(align="se3", max_diff_s=0.1))
+
+
+def test_vins_mono_mh01_ate_equals_evo(vins) -> None:
+    d, r = vins
+    assert r.ate_trans.rmse == pytest.approx(0.140305, abs=1e-5)
+    stats, err, stamps = _evo_zip(d / "ate_results.zip")
+    for k in ("rmse", "mean", "median", "std", "min", "max"):
+        assert getattr(r.ate_trans, k) == pytest.approx(stats[k], abs=1e-9), k
+    # per-pose: same poses, same errors
+    s = r.segments[0]
+    assert len(err) == len(s.ate_t)
+    assert np.abs(s.ate_t - err).max() < 1e-9
+    # evo stores the estimate's stamps of the matched pairs
+    est_t = load_estimates(d / "vins_tum.txt")[0].traj.t_ns[s.association.idx_est]
+    assert np.abs(est_t / 1e9 - stamps).max() < 1e-6
+
+
+def test_vins_mono_mh01_rpe_equals_evo(vins) -> None:
+    d, r = vins
+    assert r.rpe_delta_trans.rmse == pytest.approx(0.230288, abs=1e-5)
+    stats, err, _ = _evo_zip(d / "rpe_results.zip")
+    for k in ("rmse", "mean", "median", "std", "min", "max"):
+        assert getattr(r.rpe_delta_trans, k) == pytest.approx(stats[k], abs=1e-9), k
+    assert np.abs(r.segments[0].rpe_t - err).max() < 1e-9
+    assert (r.matched, r.possible) == (771, 773)
+
+
+@pytest.mark.parametrize("mode", ["se3", "sim3", "origin"])
+def test_v102_estimate_matches_evo(euroc_dir: Path, mode: str) -> None:
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    gt_path = euroc_dir / "groundtruth/V1_02_medium.csv"
+    est_path = euroc_dir / "eval_reference/V1_02_estimate/estimate_tum.txt"
+    r = evaluate(
+        load_groundtruth(gt_path).traj, load_estimates(est_path)[0].traj, EvalConfig(align=mode)
+    )
+    ref_e, est_e = sync.associate_trajectories(
+        file_interface.read_euroc_csv_trajectory(str(gt_path)),
+        file_interface.read_tum_trajectory_file(str(est_path)),
+    )
+    est_e = copy.deepcopy(est_e)
+    if mode == "origin":
+        est_e.align_origin(ref_e)
+    else:
+        est_e.align(ref_e, correct_scale=mode == "sim3")
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref_e, est_e))
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part)
+    rpe.process_data((ref_e, est_e))
+    rmse = metrics.StatisticsType.rmse
+    assert r.matched == ref_e.num_poses == 798
+    assert r.ate_trans.rmse == pytest.approx(ape.get_statistic(rmse), abs=1e-9)
+    assert r.rpe_delta_trans.rmse == pytest.approx(rpe.get_statistic(rmse), abs=1e-9)
+    if mode == "se3":
+        assert r.ate_trans.rmse == pytest.approx(0.0917271, abs=1e-6)
+
+
+def test_groundtruth_from_sequence_folder(mh01_first5: Path) -> None:
+    gt = load_groundtruth(mh01_first5)
+    assert gt.source.endswith("state_groundtruth_estimate0/data.csv")
+    assert len(gt.traj) == 5
