@@ -500,14 +500,14 @@ class _Doctor:
                 names.append(parts[1])
             else:
                 assert vals is not None
+                # a row with a bad value keeps its timestamp (no spurious gap), values NaN
                 try:
                     row = [float(s) for s in parts[1:]]
+                    bad = None if all(math.isfinite(v) for v in row) else "finite"
                 except ValueError:
-                    probs.setdefault("number", _Problems()).add(no, ln.strip()[:60])
-                    continue
-                if not all(math.isfinite(v) for v in row):
-                    probs.setdefault("finite", _Problems()).add(no, ln.strip()[:60])
-                    continue
+                    row, bad = [math.nan] * (ncols - 1), "number"
+                if bad is not None:
+                    probs.setdefault(bad, _Problems()).add(no, ln.strip()[:60])
                 vals[n] = row
             t[n] = ti
             nos[n] = no
@@ -877,7 +877,10 @@ class _Doctor:
     def check_values(self) -> None:
         imu = self.csvs.get("imu0")
         if imu is not None and imu.values is not None and imu.t.size:
-            acc = np.linalg.norm(imu.values[:, 3:6], axis=1)
+            ok = np.isfinite(imu.values).all(axis=1)
+            if not ok.any():
+                return
+            acc = np.linalg.norm(imu.values[ok, 3:6], axis=1)
             med = float(np.median(acc))
             if not 5.0 <= med <= 15.0:
                 hint = " (in g instead of m/s^2?)" if 0.5 <= med <= 1.5 else ""
@@ -887,7 +890,7 @@ class _Doctor:
                     f"median accelerometer norm {med:.3f} m/s^2 is far from gravity{hint}",
                     imu.rel,
                 )
-            gmax = float(np.abs(imu.values[:, 0:3]).max())
+            gmax = float(np.abs(imu.values[ok, 0:3]).max())
             if gmax > 35.0:
                 self.add(
                     WARNING,
