@@ -127,7 +127,8 @@ def read_mcap_trajectory(
     name: str | None = None,
 ) -> Trajectory:
     """Poses of one topic of a ROS 2 MCAP, sorted by header stamp (repeats keep the last)."""
-    from mcap_ros2.reader import read_ros2_messages
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
 
     path = Path(path)
     topics = mcap_topics(path)
@@ -147,8 +148,12 @@ def read_mcap_trajectory(
     rows: list[list[float]] = []
     children: dict[str, int] = {}
     try:
-        for m in read_ros2_messages(str(path), topics=[topic]):
-            msg = m.ros_msg
+        f = open(path, "rb")  # noqa: SIM115 - closed in the finally below
+    except OSError as e:
+        raise EvalError(f"{path}: cannot read: {e}") from None
+    try:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, _, _, msg in reader.iter_decoded_messages(topics=[topic]):
             if kind == "pose":
                 t.append(_stamp(msg.header))
                 rows.append(_pose_row(msg.pose))
@@ -169,6 +174,8 @@ def read_mcap_trajectory(
         raise
     except Exception as e:
         raise EvalError(f"{path}: cannot decode topic '{topic}': {e}") from None
+    finally:
+        f.close()
     if kind in ("tf", "tfs"):
         if child_frame is None and len(children) > 1:
             raise EvalError(
