@@ -170,7 +170,10 @@ def convert(
         sink.close()  # drains the queue, finishes the MCAP, renames .partial -> out
     except BaseException as e:
         pb.close()
-        sink.abort()
+        try:
+            sink.join()  # write what was already produced: no lost output
+        except BaseException:
+            sink.abort()
         try:
             partial = mcap.abort()
             s = mcap.summary()

@@ -346,9 +346,8 @@ class SensorStreams:
                 self._path_t.append(t)
                 self._path_p.append(p7)
                 self._next_path_pose_ns = t + self.opt.gt_path_pose_period_ns
-            last = i == len(self._gt_t) - 1
-            if t >= self._next_path_ns or last:
-                if not self._path_t or self._path_t[-1] != t:
+            if t >= self._next_path_ns:  # strictly at most one Path per period
+                if self._path_t[-1] != t:
                     self._path_t.append(t)
                     self._path_p.append(p7)
                 sink.write(
