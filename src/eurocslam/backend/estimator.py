@@ -295,12 +295,10 @@ class StereoInertialEstimator:
         for key in (X(k), V(k), B(k)):
             stamps[key] = tk
         self._add_stereo(k, T_guess, landmark_ids, stereo_uv, graph, values, stamps, tk)
-        if not (self.use_imu and self._pim_ok) and (
-            self.stats.n_stereo_factors < self.cfg.backend.min_obs_without_imu
-        ):
+        n_known = self.stats.n_stereo_factors - self.stats.n_new_landmarks
+        if not (self.use_imu and self._pim_ok) and n_known < self.cfg.backend.min_obs_without_imu:
             raise EstimatorFailure(
-                f"keyframe at t={t_ns} ns has {self.stats.n_stereo_factors} stereo observations "
-                "and no IMU constraint"
+                f"keyframe at t={t_ns} ns sees {n_known} mapped landmarks and has no IMU constraint"
             )
         self.stats.imu_bridged = bridged
         self.k = k
