@@ -25,6 +25,7 @@ ASL `state_groundtruth_estimate0` (no time-offset estimation, no velocity or bia
 
 from __future__ import annotations
 
+import heapq
 import struct
 import sys
 from collections.abc import Iterator, Mapping, Sequence
@@ -1002,52 +1003,49 @@ def write_rosbag(
             header=hdr(int(seq.leica.t_ns[i]), "world"), point=Point(x=p[0], y=p[1], z=p[2])
         )
 
+    # each stream yields (t, connection index, message); connections 0 and 1 are cam0, cam1
     cam_type = "sensor_msgs/msg/Image"
-    streams: list[tuple[str, str, Iterator[tuple[int, Any]]]] = []
+    channels: list[tuple[str, str]] = [(tm.cam0[0], cam_type), (tm.cam1[0], cam_type)]
+    streams: list[Iterator[tuple[int, int, Any]]] = []
 
-    def frames_stream(side: int) -> Iterator[tuple[int, Any]]:
+    def frames_stream() -> Iterator[tuple[int, int, Any]]:
         # incomplete frames too: a camera's missing image is a missing message in the bag
         for k, f in enumerate(seq.frames(include_incomplete=True)):
             if max_frames is not None and k >= max_frames:
                 return
-            img = f.left if side == 0 else f.right
-            if img is not None:
-                yield f.t_ns, image(f.t_ns, img, f"cam{side}")
+            for side, img in ((0, f.left), (1, f.right)):
+                if img is not None:
+                    yield f.t_ns, side, image(f.t_ns, img, f"cam{side}")
 
-    streams.append((tm.cam0[0], cam_type, frames_stream(0)))
-    streams.append((tm.cam1[0], cam_type, frames_stream(1)))
-    streams.append(
-        (tm.imu[0], "sensor_msgs/msg/Imu",
-         ((int(seq.imu.t_ns[i]), imu_msg(i)) for i in range(len(seq.imu))))
-    )  # fmt: skip
+    def add_stream(topic: str, typ: str, n: int, t_ns: Any, make: Any) -> None:
+        k = len(channels)
+        channels.append((topic, typ))
+        streams.append((int(t_ns[i]), k, make(i)) for i in range(n))
+
+    streams.append(frames_stream())
+    add_stream(tm.imu[0], "sensor_msgs/msg/Imu", len(seq.imu), seq.imu.t_ns, imu_msg)
     if gt is not None:
         if groundtruth == "vicon":
             gt_topic, gt_type = EUROC_VICON_TOPIC, "geometry_msgs/msg/TransformStamped"
         else:
             gt_topic, gt_type = "/groundtruth/pose", "geometry_msgs/msg/PoseStamped"
-        streams.append((gt_topic, gt_type, ((int(gt.t_ns[i]), gt_msg(i)) for i in range(len(gt)))))
+        add_stream(gt_topic, gt_type, len(gt), gt.t_ns, gt_msg)
     if seq.leica is not None:
-        streams.append(
-            ("/leica/position", "geometry_msgs/msg/PointStamped",
-             ((int(t), leica_msg(i)) for i, t in enumerate(seq.leica.t_ns)))
+        add_stream(
+            "/leica/position", "geometry_msgs/msg/PointStamped", len(seq.leica.t_ns),
+            seq.leica.t_ns, leica_msg,
         )  # fmt: skip
 
-    import heapq
-
-    def tagged(k: int, it: Iterator[tuple[int, Any]]) -> Iterator[tuple[int, int, Any]]:
-        for t, m in it:
-            yield t, k, m
-
-    merged = heapq.merge(*(tagged(k, s[2]) for k, s in enumerate(streams)), key=lambda x: x[:2])
+    merged = heapq.merge(*streams, key=lambda x: (x[0], x[1]))
     if ros1:
         writer: Any = Writer1(out)
     else:
         plugin = StoragePlugin.MCAP if fmt == "ros2-mcap" else StoragePlugin.SQLITE3
         writer = Writer2(out, version=9, storage_plugin=plugin)
     with writer:
-        conns = [writer.add_connection(topic, typ, typestore=ts) for topic, typ, _ in streams]
+        conns = [writer.add_connection(topic, typ, typestore=ts) for topic, typ in channels]
         for t, k, msg in merged:
-            writer.write(conns[k], t, ser(msg, streams[k][1]))
+            writer.write(conns[k], t, ser(msg, channels[k][1]))
     return out
 
 
