@@ -751,10 +751,10 @@ class _Doctor:
             return
         if self.full or len(usable) <= self.sample:
             picks = usable
+        elif self.sample <= 0:
+            return
         else:
-            idx = np.unique(
-                np.linspace(0, len(usable) - 1, max(self.sample, 1)).round().astype(int)
-            )
+            idx = np.unique(np.linspace(0, len(usable) - 1, self.sample).round().astype(int))
             picks = [usable[i] for i in idx]
         unreadable: list[str] = []
         blank: list[str] = []
