@@ -71,7 +71,8 @@ class FrontendConfig:
     ba_fixed_keyframes: int = 2  # older keyframes held fixed (gauge + context)
     ba_pixel_sigma: float = 1.0
     ba_huber_k: float = 1.345  # robust loss (Huber) threshold in sigmas
-    ba_max_iterations: int = 8
+    ba_max_iterations: int = 6
+    ba_max_landmarks: int = 400  # most-observed landmarks of the window enter the BA
 
     # ---- execution -------------------------------------------------------------------------
     prefetch: bool = True  # decode+rectify+ORB of frame k+1 in a thread while k is tracked

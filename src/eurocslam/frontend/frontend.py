@@ -182,6 +182,14 @@ class StereoFrontend:
                 fut = pool.submit(job)
                 yield item
 
+    def predict(self, t_ns: int) -> F64 | None:
+        """Constant-velocity prediction of T_world_body at t_ns (None before the first pose)."""
+        return self._motion.predict(t_ns)
+
+    @property
+    def state_initialized(self) -> bool:
+        return self._initialized
+
     def landmark_positions(self, ids: NDArray[np.int64]) -> F64:
         """World positions (N, 3) of landmark ids; NaN rows for ids no longer in the map."""
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)

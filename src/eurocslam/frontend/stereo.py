@@ -71,7 +71,7 @@ class StereoRectifier:
         pts = np.asarray(uv_raw, dtype=np.float64).reshape(-1, 1, 2)
         if pts.shape[0] == 0:
             return np.zeros((0, 2))
-        out = cv2.undistortPoints(pts, c0.K, c0.D, R=self.R_rect0_cam0, P=self.P0)
+        out = undistort_points(pts, c0.K, c0.D, self.R_rect0_cam0, self.P0)
         return out.reshape(-1, 2)
 
     def rect0_to_raw(self, uv_rect: F64) -> F64:
@@ -87,6 +87,13 @@ class StereoRectifier:
         c0 = self.rig.cam0
         out, _ = cv2.projectPoints(rays_cam0, np.zeros(3), np.zeros(3), c0.K, c0.D)
         return out.reshape(-1, 2)
+
+
+def undistort_points(pts: F64, K: F64, D: F64, R: F64, P: F64) -> F64:
+    """`cv2.undistortPoints` iterated to convergence (its default 5 iterations leave up to
+    0.2 px in EuRoC's image corners)."""
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9)
+    return cv2.undistortPoints(pts, K, D, R=R, P=P, criteria=crit)
 
 
 def triangulate_rect(uL: F64, uR: F64, v: F64, geom: RectifiedStereo) -> F64:
