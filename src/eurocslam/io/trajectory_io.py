@@ -167,6 +167,9 @@ def seconds_str_to_ns(tok: str) -> int:
 
     Digits beyond the nanosecond are rounded half away from zero. Raises ValueError.
     """
+    ip, dot, fp = tok.partition(".")
+    if ip.isdigit() and (fp.isdigit() or (dot and not fp)) and len(fp) <= 9:
+        return int(ip) * NS_PER_S + (int(fp.ljust(9, "0")) if fp else 0)
     m = _DEC_RE.match(tok)
     if m and (m.group(2) or m.group(3)):
         sign, ip, fp = m.group(1), m.group(2) or "0", m.group(3) or ""
@@ -350,32 +353,39 @@ def read_trajectory(
     unit = file_unit if time_unit == "auto" else time_unit
     to_ns = seconds_str_to_ns if unit == "s" else _int_ns
 
-    n_max = len(lines)
-    t = np.empty(n_max, dtype=np.int64)
-    vals = np.empty((n_max, 7), dtype=np.float64)
-    seg = np.empty(n_max, dtype=np.int64)
-    lineno = np.empty(n_max, dtype=np.int64)
+    # pass 1 (plain Python, cheap): data lines, their tokens and segment ids
+    rows: list[list[str]] = []
+    line_no: list[int] = []
+    seg_ids: list[int] = []
     cur_seg = 0
     saw_segment = lay.segment_col is not None
-    n = 0
     for i, raw in enumerate(lines):
         s = raw.strip()
         if not s:
             continue
-        if s.startswith("#"):
+        if s[0] == "#":
             m = _SEGMENT_RE.match(s)
             if m:
                 cur_seg = int(m.group(1))
                 saw_segment = True
             continue
-        parts = _split(s, lay.sep)
+        parts = s.split() if lay.sep is None else [x.strip() for x in s.split(lay.sep)]
         if len(parts) != lay.ncols:
             raise EvalError(
                 f"{path}:{i + 1}: expected {lay.ncols} columns like the first pose line, "
                 f"found {len(parts)}: '{s[:80]}'"
             )
+        rows.append(parts)
+        line_no.append(i + 1)
+        seg_ids.append(cur_seg)
+    n = len(rows)
+    lineno = np.asarray(line_no, dtype=np.int64)
+
+    # timestamps: exact integer nanoseconds from the decimal text
+    t = np.empty(n, dtype=np.int64)
+    for k, parts in enumerate(rows):
         try:
-            t[n] = to_ns(parts[0])
+            t[k] = to_ns(parts[0])
         except OverflowError:
             hint = (
                 "; it looks like nanoseconds but TUM time is seconds (pass --time-unit ns if "
@@ -384,37 +394,50 @@ def read_trajectory(
                 else ""
             )
             raise EvalError(
-                f"{path}:{i + 1}: timestamp '{parts[0]}' is out of range{hint}"
+                f"{path}:{line_no[k]}: timestamp '{parts[0]}' is out of range{hint}"
             ) from None
         except _FractionalNs:
             if time_unit == "ns":
                 raise EvalError(
-                    f"{path}:{i + 1}: timestamp '{parts[0]}' is not an integer number of ns"
+                    f"{path}:{line_no[k]}: timestamp '{parts[0]}' is not an integer number of ns"
                 ) from None
             raise EvalError(
-                f"{path}:{i + 1}: timestamp '{parts[0]}' looks like seconds; EuRoC CSV time is "
-                "integer nanoseconds (pass --time-unit s if this file really holds seconds)"
+                f"{path}:{line_no[k]}: timestamp '{parts[0]}' looks like seconds; EuRoC CSV "
+                "time is integer nanoseconds (pass --time-unit s if this file really holds "
+                "seconds)"
             ) from None
         except (ValueError, InvalidOperation):
-            raise EvalError(f"{path}:{i + 1}: timestamp '{parts[0]}' is not a number") from None
-        try:
-            vals[n] = [float(x) for x in parts[1:8]]
-        except ValueError:
-            raise EvalError(f"{path}:{i + 1}: non-numeric value in '{s[:80]}'") from None
-        if not np.all(np.isfinite(vals[n])):
-            raise EvalError(f"{path}:{i + 1}: non-finite value in '{s[:80]}'")
-        if lay.segment_col is not None:
+            raise EvalError(
+                f"{path}:{line_no[k]}: timestamp '{parts[0]}' is not a number"
+            ) from None
+
+    # values: one vectorised conversion; on failure find the row to name it
+    try:
+        vals = np.array([r[1:8] for r in rows], dtype=np.float64).reshape(n, 7)
+    except ValueError:
+        for k, r in enumerate(rows):
             try:
-                seg[n] = int(float(parts[lay.segment_col]))
+                [float(x) for x in r[1:8]]
             except ValueError:
                 raise EvalError(
-                    f"{path}:{i + 1}: segment '{parts[lay.segment_col]}' is not an integer"
+                    f"{path}:{line_no[k]}: non-numeric value in '{' '.join(r)[:80]}'"
                 ) from None
-        else:
-            seg[n] = cur_seg
-        lineno[n] = i + 1
-        n += 1
-    t, vals, seg, lineno = t[:n], vals[:n], seg[:n], lineno[:n]
+        raise
+    finite = np.isfinite(vals).all(axis=1)
+    if not finite.all():
+        k = int(np.argmin(finite))
+        raise EvalError(f"{path}:{line_no[k]}: non-finite value in '{' '.join(rows[k])[:80]}'")
+    if lay.segment_col is not None:
+        seg = np.empty(n, dtype=np.int64)
+        for k, r in enumerate(rows):
+            try:
+                seg[k] = int(float(r[lay.segment_col]))
+            except ValueError:
+                raise EvalError(
+                    f"{path}:{line_no[k]}: segment '{r[lay.segment_col]}' is not an integer"
+                ) from None
+    else:
+        seg = np.asarray(seg_ids, dtype=np.int64)
     _check_time_unit(path, t, file_unit if time_unit == "auto" else time_unit, lineno, time_unit)
 
     q_raw = vals[:, 3:7] if lay.w_first else xyzw_to_wxyz(vals[:, 3:7])
