@@ -496,6 +496,7 @@ class BagSequence:
             role_conns = self._resolve_topics(reader)
             self._conn_role = {id(c): r for r, cs in role_conns.items() for c in cs}
             conns = [c for cs in role_conns.values() for c in cs]
+            fast: dict[int, bool] = {}  # connection -> raw fast path verified on its first message
             total = sum(int(c.msgcount) for c in conns)
             pb = bar(total=total or None, desc=f"indexing {self.path.name}", unit="msg",
                      enabled=show_progress)  # fmt: skip
@@ -511,26 +512,43 @@ class BagSequence:
                         st.header_ns.append(stamp)
                         st.log_ns.append(int(log_ns))
                         continue
-                    msg = self._deserialize(reader, raw, conn, log_ns)
-                    stamp = _stamp_of(msg)
+                    stamp, vals = self._values(reader, conn, raw, log_ns, fast)
                     st.header_ns.append(stamp)
                     st.log_ns.append(int(log_ns))
                     if role == "imu":
-                        w, a = msg.angular_velocity, msg.linear_acceleration
                         imu_t.append(stamp)
-                        imu_v.append((w.x, w.y, w.z, a.x, a.y, a.z))
+                        imu_v.append(vals)
                     elif role == "groundtruth":
                         gt_t.append(stamp)
-                        gt_v.append(_pose_values(msg))
+                        gt_v.append(vals)
                     else:
-                        p = msg.point
                         le_t.append(stamp)
-                        le_v.append((p.x, p.y, p.z))
+                        le_v.append(vals)  # type: ignore[arg-type]
             finally:
                 pb.close()
         self.imu = self._build_imu(imu_t, imu_v)
         self.groundtruth = self._build_groundtruth(gt_t, gt_v)
         self.leica = self._build_leica(le_t, le_v)
+
+    def _values(
+        self, reader: Any, conn: Any, raw: bytes | memoryview, log_ns: int, fast: dict[int, bool]
+    ) -> tuple[int, tuple[float, ...]]:
+        """(header stamp, numbers) of an IMU, ground-truth or Leica message. The raw parser is
+        used once it reproduced rosbags' full decoding of the connection's first message."""
+        ok = fast.get(id(conn))
+        if ok:
+            try:
+                return fast_values(raw, self.ros2, conn.msgtype)
+            except (struct.error, IndexError):
+                pass  # a malformed message: the full decoder names the problem
+        msg = self._deserialize(reader, raw, conn, log_ns)
+        out = _stamp_of(msg), message_values(msg, conn.msgtype)
+        if ok is None:
+            try:
+                fast[id(conn)] = fast_values(raw, self.ros2, conn.msgtype) == out
+            except (struct.error, IndexError, KeyError):
+                fast[id(conn)] = False
+        return out
 
     def _raw_stamp(self, raw: bytes | memoryview, topic: str, log_ns: int) -> int:
         try:
@@ -836,15 +854,57 @@ class BagSequence:
         return out
 
 
-def _pose_values(msg: Any) -> tuple[float, ...]:
-    """(x, y, z, qx, qy, qz, qw) from a PoseStamped, TransformStamped, Odometry or
-    PoseWithCovarianceStamped."""
+def message_values(msg: Any, msgtype: str) -> tuple[float, ...]:
+    """Numbers of a decoded message: Imu -> (wx, wy, wz, ax, ay, az); poses -> (x, y, z, qx, qy,
+    qz, qw) from PoseStamped, TransformStamped, Odometry, PoseWithCovarianceStamped;
+    PointStamped -> (x, y, z)."""
+    if msgtype == "sensor_msgs/msg/Imu":
+        w, a = msg.angular_velocity, msg.linear_acceleration
+        return (w.x, w.y, w.z, a.x, a.y, a.z)
+    if msgtype == "geometry_msgs/msg/PointStamped":
+        return (msg.point.x, msg.point.y, msg.point.z)
     if hasattr(msg, "transform"):
         t, q = msg.transform.translation, msg.transform.rotation
     else:
         pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
         t, q = pose.position, pose.orientation
     return (t.x, t.y, t.z, q.x, q.y, q.z, q.w)
+
+
+# Raw layouts: (strings after header.frame_id, leading float64 fields to read, indices kept).
+# Imu: orientation 4, orientation_covariance 9, angular_velocity 3 (13..15), its covariance 9,
+# linear_acceleration 3 (25..27).
+_FAST_LAYOUTS: dict[str, tuple[int, int, tuple[int, ...]]] = {
+    "sensor_msgs/msg/Imu": (0, 28, (13, 14, 15, 25, 26, 27)),
+    "geometry_msgs/msg/PoseStamped": (0, 7, tuple(range(7))),
+    "geometry_msgs/msg/PoseWithCovarianceStamped": (0, 7, tuple(range(7))),
+    "geometry_msgs/msg/TransformStamped": (1, 7, tuple(range(7))),
+    "nav_msgs/msg/Odometry": (1, 7, tuple(range(7))),
+    "geometry_msgs/msg/PointStamped": (0, 3, (0, 1, 2)),
+}
+
+
+def fast_values(raw: bytes | memoryview, ros2: bool, msgtype: str) -> tuple[int, tuple[float, ...]]:
+    """`message_values` and the header stamp straight from the serialized bytes (ROS 1 or plain
+    CDR), about 30x faster than a full decode. Callers verify it against the full decoder."""
+    extra, n, keep = _FAST_LAYOUTS[msgtype]
+    if ros2:
+        if raw[0] != 0 or raw[1] > 1:
+            raise struct.error("not plain CDR")
+        e = "<" if raw[1] & 1 else ">"
+    else:
+        e = "<"
+    stamp = header_stamp_ns(raw, ros2)
+    pos = 12
+    for _ in range(1 + extra):
+        if ros2:
+            pos = 4 + ((pos - 4 + 3) & ~3)
+        (length,) = struct.unpack_from(e + "I", raw, pos)
+        pos += 4 + length
+    if ros2:
+        pos = 4 + ((pos - 4 + 7) & ~7)
+    vals = struct.unpack_from(f"{e}{n}d", raw, pos)
+    return stamp, tuple(vals[i] for i in keep)
 
 
 ROLE_FIELDS = tuple(f.name for f in fields(TopicMap) if f.name != "explicit")
