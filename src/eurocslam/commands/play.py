@@ -1,0 +1,158 @@
+"""`eurocslam play RUN.mcap --live`: serve a recorded MCAP to Foxglove over WebSocket."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from eurocslam.errors import EurocSlamError
+
+NAME = "play"
+HELP = "serve a recorded MCAP (e.g. OUT/run.mcap) live to Foxglove over WebSocket"
+
+_GRACE_S = 3.0  # a viewer reloading its page reconnects within this time
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("mcap", type=Path, help="an MCAP file, e.g. OUT/run.mcap from `eurocslam run`")
+    p.add_argument(
+        "--live",
+        action="store_true",
+        help="serve over the Foxglove WebSocket protocol (connect Foxglove to ws://localhost:PORT)",
+    )
+    p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765; 0: any)")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address to listen on (default 127.0.0.1, this machine only; 0.0.0.0 for all)",
+    )
+    p.add_argument(
+        "--rate",
+        type=float,
+        default=1.0,
+        help="playback speed, x real time (default 1; 0 = as fast as possible)",
+    )
+    p.add_argument("--loop", action="store_true", help="start again at the end of the file")
+    p.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="start playing at once instead of waiting for a viewer to connect",
+    )
+    p.add_argument(
+        "--keep-serving",
+        action="store_true",
+        help="keep serving when every viewer has disconnected (default: stop, exit 0)",
+    )
+
+
+class _ViewerWatch:
+    """True once every viewer has been gone for longer than the grace period."""
+
+    def __init__(self, n_clients: object, grace_s: float = _GRACE_S) -> None:
+        self._n = n_clients
+        self._grace = grace_s
+        self._gone_since: float | None = None
+
+    def __call__(self) -> bool:
+        if self._n() > 0:  # type: ignore[operator]
+            self._gone_since = None
+            return False
+        now = time.monotonic()
+        if self._gone_since is None:
+            self._gone_since = now
+        return now - self._gone_since > self._grace
+
+
+def run(args: argparse.Namespace) -> int:
+    from eurocslam.io.live import LiveSink, advertise_mcap, play_mcap, read_mcap_info
+    from eurocslam.progress import bar
+
+    if not args.live:
+        raise EurocSlamError(
+            "play: add --live to serve the file over the Foxglove WebSocket protocol "
+            "(to open it offline instead, drag the file into Foxglove)"
+        )
+    if args.rate < 0:
+        raise EurocSlamError(
+            f"play: --rate must be >= 0 (0 = as fast as possible), got {args.rate}"
+        )
+    if not 0 <= args.port <= 65535:
+        raise EurocSlamError(f"play: --port must be 0..65535, got {args.port}")
+    info = read_mcap_info(args.mcap)
+    if info.message_count == 0:
+        raise EurocSlamError(f"{info.path}: the MCAP holds no messages")
+    span_s = (info.end_ns - info.start_ns) / 1e9
+    sink = LiveSink(
+        host=args.host,
+        port=args.port,
+        rate=args.rate or None,
+        playback_range_ns=(info.start_ns, info.end_ns),
+    )
+    log = sys.stderr
+    try:
+        advertise_mcap(info, sink)
+        print(
+            f"eurocslam play: serving {info.path} ({info.message_count} messages, {span_s:.1f} s, "
+            f"{len(info.channels)} topics) on {sink.url}\n"
+            "  In Foxglove: Open connection > Foxglove WebSocket > "
+            f"{sink.url}; layout: Layouts > Import from file > layouts/eurocslam.json",
+            file=log,
+            flush=True,
+        )
+        if not args.no_wait:
+            print(
+                "eurocslam play: waiting for a viewer to connect (Ctrl-C to stop)",
+                file=log,
+                flush=True,
+            )
+            while not sink.wait_for_client(1.0):
+                pass
+        watch = None if args.keep_serving else _ViewerWatch(lambda: sink.n_clients)
+        pb = bar(total=round(span_s, 1), desc="play", unit="s")
+        shown = [0.0]
+
+        def on_message(t_ns: int) -> None:
+            done = round((t_ns - info.start_ns) / 1e9, 1)
+            if done > shown[0]:
+                pb.update(done - shown[0])
+                shown[0] = done
+
+        try:
+            res = play_mcap(
+                info, sink, loop=args.loop, stop_when_no_clients=watch, on_message=on_message
+            )
+        finally:
+            pb.close()
+        if not res.finished:
+            print(
+                f"eurocslam play: stopped after {res.messages} messages ({res.stopped_because})",
+                file=log,
+            )
+            return 0
+        print(
+            f"eurocslam play: end of file after {res.messages} messages"
+            + (f", {res.seeks} seeks" if res.seeks else ""),
+            file=log,
+            flush=True,
+        )
+        if watch is None:
+            print("eurocslam play: still serving (Ctrl-C to stop)", file=log, flush=True)
+            while True:
+                time.sleep(0.5)
+        print(
+            "eurocslam play: still serving the last state until the viewer disconnects "
+            "(Ctrl-C to stop now)",
+            file=log,
+            flush=True,
+        )
+        while not watch():
+            time.sleep(0.2)
+        print("eurocslam play: the viewer disconnected", file=log)
+        return 0
+    except KeyboardInterrupt:
+        print("eurocslam play: stopped (Ctrl-C)", file=log)
+        return 0
+    finally:
+        sink.close()

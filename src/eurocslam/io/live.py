@@ -1,0 +1,735 @@
+"""Live view: serve messages over the Foxglove WebSocket protocol while they are produced.
+
+`LiveSink` is a `Sink` (see `io/sink.py`): `write(topic, msgtype, log_time_ns, cdr_bytes)` logs
+the message on a channel of a foxglove-sdk WebSocket server, paced so that data time advances at
+`rate` x wall time (`rate=None` or `0`: as fast as possible). `eurocslam run SEQ --live` tees it
+with the MCAP sink; `eurocslam play RUN.mcap --live` feeds it from a recorded file (`play_mcap`).
+A user opens Foxglove, connects to `ws://localhost:8765` and uses the same layout as for the
+recorded file (`layouts/eurocslam.json`).
+
+- Two protocol names, one protocol. foxglove-sdk (>= 0.1x) only accepts the WebSocket
+  subprotocol `foxglove.sdk.v1`; Foxglove Studio <= 1.8x, Lichtblick (before its late-2025
+  releases) and other ws-protocol clients ask for `foxglove.websocket.v1`, the same protocol
+  under its older name. So the SDK server listens on an ephemeral loopback port and a small
+  relay (`websockets`) listens on the user's port, accepts either name and passes frames through
+  unchanged. Both today's Foxglove and the open-source viewers connect.
+- Latched topics (`/tf_static`, and channels whose MCAP QoS says transient-local): the newest
+  message is kept and re-sent whenever a client subscribes, so a viewer that connects late still
+  gets the static transforms.
+- Time: the server has the `time` capability and broadcasts the data time, so the viewer's clock
+  follows the data (EuRoC stamps), not the wall clock.
+- Playback control (`play` only, where the viewer supports it: today's Foxglove): the server
+  advertises the file's time range; pause, resume, speed and seek requests act on the pacing
+  clock and on the reader. Foxglove Studio 1.48 / Lichtblick have no such controls for
+  WebSocket sources; there `--rate` sets the speed.
+- Clients: `n_clients` counts connected viewers (at the relay); `wait_for_client(timeout)`
+  blocks until one is connected and subscribed.
+- Everything binds to 127.0.0.1 unless another host is given; `close()` stops the relay and the
+  server (also after Ctrl-C: call it in a `finally`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import struct
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from eurocslam.errors import DatasetError, OutputError
+
+if TYPE_CHECKING:
+    import foxglove
+
+SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
+DEFAULT_PORT = 8765
+LATCHED_TOPICS = frozenset({"/tf_static"})
+_MAX_LAG_S = 0.5  # when the producer falls this far behind the pacing clock, re-anchor it
+
+
+def _require_live_deps() -> None:
+    try:
+        import foxglove  # noqa: F401
+        import websockets  # noqa: F401
+    except ImportError as e:
+        raise OutputError(
+            f"the live view needs the packages foxglove-sdk and websockets ({e.name} is "
+            "missing): pip install 'foxglove-sdk>=0.16' 'websockets>=13'"
+        ) from None
+
+
+# ---- pacing ---------------------------------------------------------------------------------
+class PacingClock:
+    """Maps data time (ns) to wall time at `rate` x real time, with pause and speed changes.
+
+    `wait(t_ns)` blocks until the wall clock reaches the slot of `t_ns` (and while paused).
+    `rate` None, 0 or inf means as fast as possible. If the producer is slower than the clock
+    (more than 0.5 s behind), the clock is re-anchored instead of bursting later."""
+
+    def __init__(
+        self,
+        rate: float | None = 1.0,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._cond = threading.Condition()
+        self._clock = clock
+        self._rate = self._check_rate(rate)
+        self._paused = False
+        self._stopped = False
+        self._anchor: tuple[int, float] | None = None  # (data ns, wall s)
+        self.last_ns: int | None = None
+
+    @staticmethod
+    def _check_rate(rate: float | None) -> float | None:
+        if rate is None or rate == 0 or math.isinf(rate):
+            return None
+        if not (rate > 0 and math.isfinite(rate)):
+            raise ValueError(f"rate must be > 0 (or 0 for as fast as possible), got {rate}")
+        return float(rate)
+
+    @property
+    def rate(self) -> float | None:
+        return self._rate
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
+
+    @property
+    def stopped(self) -> bool:
+        return self._stopped
+
+    def set_rate(self, rate: float | None) -> None:
+        with self._cond:
+            self._rate = self._check_rate(rate)
+            self._anchor = None
+            self._cond.notify_all()
+
+    def pause(self) -> None:
+        with self._cond:
+            self._paused = True
+            self._cond.notify_all()
+
+    def resume(self) -> None:
+        with self._cond:
+            self._paused = False
+            self._anchor = None
+            self._cond.notify_all()
+
+    def reanchor(self) -> None:
+        """Forget the time mapping (after a seek or a loop): the next `wait` starts afresh."""
+        with self._cond:
+            self._anchor = None
+            self._cond.notify_all()
+
+    def stop(self) -> None:
+        with self._cond:
+            self._stopped = True
+            self._cond.notify_all()
+
+    def wait(self, t_ns: int) -> bool:
+        """Block until `t_ns` is due. Returns False if the clock was stopped meanwhile."""
+        t_ns = int(t_ns)
+        with self._cond:
+            while True:
+                if self._stopped:
+                    return False
+                if self._paused:
+                    self._cond.wait(0.1)
+                    continue
+                if self._rate is None:
+                    break
+                now = self._clock()
+                if self._anchor is None:
+                    self._anchor = (t_ns, now)
+                    break
+                t0, w0 = self._anchor
+                due = w0 + (t_ns - t0) / 1e9 / self._rate
+                if now >= due:
+                    if now - due > _MAX_LAG_S:  # the producer is behind: do not burst later
+                        self._anchor = (t_ns, now)
+                    break
+                self._cond.wait(min(due - now, 0.1))
+            self.last_ns = t_ns if self.last_ns is None else max(self.last_ns, t_ns)
+            return True
+
+
+# ---- subprotocol relay ----------------------------------------------------------------------
+class _Relay:
+    """Accepts `foxglove.sdk.v1` and `foxglove.websocket.v1` on (host, port) and relays each
+    connection, frame by frame, to the SDK server on 127.0.0.1:upstream_port."""
+
+    def __init__(self, host: str, port: int, upstream_port: int) -> None:
+        self.host = host
+        self.upstream = f"ws://127.0.0.1:{upstream_port}"
+        self.port = 0
+        self._clients = 0
+        self._lock = threading.Condition()
+        self._loop = asyncio.new_event_loop()
+        self._server: Any = None
+        self._error: BaseException | None = None
+        self._started = threading.Event()
+        self._thread = threading.Thread(
+            target=self._run, args=(port,), daemon=True, name="eurocslam-live-relay"
+        )
+        self._thread.start()
+        if not self._started.wait(10.0):
+            raise OutputError(f"live view: the WebSocket relay on {host}:{port} did not start")
+        if self._error is not None:
+            err = self._error
+            if isinstance(err, OSError):
+                raise OutputError(
+                    f"live view: cannot listen on {host}:{port}: {err.strerror or err} "
+                    "(is another server using the port? choose one with --port)"
+                ) from None
+            raise OutputError(f"live view: relay failed to start: {err}") from None
+
+    @property
+    def n_clients(self) -> int:
+        with self._lock:
+            return self._clients
+
+    def wait_clients(self, predicate: Callable[[int], bool], timeout: float | None) -> bool:
+        with self._lock:
+            return self._lock.wait_for(lambda: predicate(self._clients), timeout)
+
+    def _run(self, port: int) -> None:
+        asyncio.set_event_loop(self._loop)
+        try:
+            self._loop.run_until_complete(self._start(port))
+        except BaseException as e:
+            self._error = e
+            self._started.set()
+            return
+        self._started.set()
+        self._loop.run_forever()
+        # shutting down: close the listening socket and every open connection
+        self._loop.run_until_complete(self._shutdown())
+        self._loop.close()
+
+    async def _start(self, port: int) -> None:
+        from websockets.asyncio.server import serve
+
+        self._server = await serve(
+            self._handle,
+            self.host,
+            port,
+            subprotocols=list(SUBPROTOCOLS),  # type: ignore[arg-type]
+            compression=None,
+            max_size=64 << 20,
+            ping_interval=20,
+            ping_timeout=60,
+        )
+        self.port = int(self._server.sockets[0].getsockname()[1])
+
+    async def _shutdown(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            with contextlib.suppress(TimeoutError, asyncio.TimeoutError):
+                await asyncio.wait_for(self._server.wait_closed(), 3.0)
+        tasks = [t for t in asyncio.all_tasks(self._loop) if t is not asyncio.current_task()]
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+
+    async def _handle(self, client: Any) -> None:
+        from websockets.asyncio.client import connect
+        from websockets.exceptions import WebSocketException
+
+        with self._lock:
+            self._clients += 1
+            self._lock.notify_all()
+        try:
+            async with connect(
+                self.upstream,
+                subprotocols=list(SUBPROTOCOLS),  # type: ignore[arg-type]
+                compression=None,
+                max_size=None,
+                open_timeout=10,
+                ping_interval=None,
+            ) as upstream:
+                down = asyncio.ensure_future(self._pump(client, upstream))
+                up = asyncio.ensure_future(self._pump(upstream, client))
+                _, pending = await asyncio.wait({down, up}, return_when=asyncio.FIRST_COMPLETED)
+                for t in pending:
+                    t.cancel()
+                await asyncio.gather(*pending, return_exceptions=True)
+        except (OSError, WebSocketException, asyncio.TimeoutError, TimeoutError):
+            pass  # the viewer went away or the server is stopping: nothing to report
+        finally:
+            with self._lock:
+                self._clients -= 1
+                self._lock.notify_all()
+
+    @staticmethod
+    async def _pump(src: Any, dst: Any) -> None:
+        from websockets.exceptions import ConnectionClosed
+
+        try:
+            async for frame in src:
+                await dst.send(frame)
+        except ConnectionClosed:
+            pass
+        finally:
+            await dst.close()
+
+    def close(self) -> None:
+        if self._loop.is_running():
+            self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(timeout=10.0)
+
+
+# ---- the sink -------------------------------------------------------------------------------
+@dataclass
+class _Topic:
+    channel: foxglove.Channel
+    msgtype: str
+    latched: bool
+    last: tuple[int, bytes] | None = None  # newest (log time, data) of a latched topic
+
+
+@dataclass
+class LiveStats:
+    messages: int = 0
+    bytes: int = 0
+    per_topic: dict[str, int] = field(default_factory=dict)
+
+
+class LiveSink:
+    """A foxglove-sdk WebSocket server behind the `Sink` interface, paced at `rate`."""
+
+    def __init__(
+        self,
+        *,
+        host: str = "127.0.0.1",
+        port: int = DEFAULT_PORT,
+        rate: float | None = 1.0,
+        name: str = "eurocslam",
+        latched_topics: frozenset[str] = LATCHED_TOPICS,
+        playback_range_ns: tuple[int, int] | None = None,
+    ) -> None:
+        _require_live_deps()
+        import foxglove
+        from foxglove.websocket import Capability
+
+        self.clock = PacingClock(rate)
+        self.latched_topics = latched_topics
+        self.stats = LiveStats()
+        self._topics: dict[str, _Topic] = {}
+        self._lock = threading.RLock()
+        self._seek_ns: int | None = None
+        self._subscribed: dict[int, set[int]] = {}  # client id -> channel ids
+        self._sub_cond = threading.Condition()
+        self._last_time_broadcast = -(1 << 62)
+        self._closed = False
+        self._ctx = foxglove.Context()
+        self.playback_range_ns = playback_range_ns
+        try:
+            self._server = foxglove.start_server(
+                name=name,
+                host="127.0.0.1",
+                port=0,
+                capabilities=[Capability.Time],
+                server_listener=_Listener(self),
+                context=self._ctx,
+                playback_time_range=playback_range_ns,
+            )
+        except Exception as e:  # the SDK raises its own error types
+            raise OutputError(f"live view: the Foxglove server did not start: {e}") from None
+        try:
+            self._relay = _Relay(host, port, self._server.port)
+        except BaseException:
+            self._server.stop()
+            raise
+        self.host = host
+
+    # ---- info
+    @property
+    def port(self) -> int:
+        return self._relay.port
+
+    @property
+    def url(self) -> str:
+        host = "localhost" if self.host in ("127.0.0.1", "0.0.0.0", "::", "") else self.host
+        return f"ws://{host}:{self.port}"
+
+    @property
+    def n_clients(self) -> int:
+        """Viewers connected right now."""
+        return self._relay.n_clients
+
+    def wait_for_client(self, timeout: float | None = None) -> bool:
+        """Block until a viewer is connected and has subscribed to a topic (True), or until
+        `timeout` seconds have passed (False)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._sub_cond:
+            while not any(self._subscribed.values()):
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    return False
+                self._sub_cond.wait(0.1 if left is None else min(left, 0.1))
+        return True
+
+    def wait_all_disconnected(self, timeout: float | None = None) -> bool:
+        return self._relay.wait_clients(lambda n: n == 0, timeout)
+
+    # ---- channels
+    def advertise(
+        self,
+        topic: str,
+        msgtype: str,
+        *,
+        schema: bytes | None = None,
+        schema_encoding: str = "ros2msg",
+        message_encoding: str = "cdr",
+        latched: bool | None = None,
+    ) -> None:
+        """Create the channel of `topic` now (so viewers see it before its first message).
+        `schema` defaults to the ROS 2 humble definition of `msgtype` (`io.ros2.schema_text`)."""
+        import foxglove
+
+        with self._lock:
+            t = self._topics.get(topic)
+            if t is not None:
+                if t.msgtype != msgtype:
+                    raise OutputError(
+                        f"live view: topic {topic} already has type {t.msgtype}, "
+                        f"cannot publish {msgtype}"
+                    )
+                return
+            if schema is None:
+                from eurocslam.io import ros2
+
+                try:
+                    schema = ros2.schema_text(msgtype).encode()
+                except Exception as e:
+                    raise OutputError(
+                        f"no ROS 2 definition for message type {msgtype}: {e}"
+                    ) from None
+            channel = foxglove.Channel(
+                topic,
+                schema=foxglove.Schema(name=msgtype, encoding=schema_encoding, data=schema),
+                message_encoding=message_encoding,
+                context=self._ctx,
+            )
+            is_latched = topic in self.latched_topics if latched is None else latched
+            self._topics[topic] = _Topic(channel, msgtype, is_latched)
+
+    def set_latched(self, topic: str, log_time_ns: int, msg: bytes) -> None:
+        """Store the message a latched topic re-sends to every new subscriber (without sending
+        it now), e.g. the file's `/tf_static` before playback reaches it."""
+        with self._lock:
+            t = self._topics[topic]
+            t.latched = True
+            t.last = (int(log_time_ns), msg)
+
+    def has_latched(self, topic: str) -> bool:
+        with self._lock:
+            t = self._topics.get(topic)
+            return t is not None and t.last is not None
+
+    # ---- Sink
+    def write(self, topic: str, msgtype: str, log_time_ns: int, msg: bytes) -> None:
+        if self._closed:
+            raise OutputError("live view: write after close")
+        t_ns = int(log_time_ns)
+        if topic not in self._topics:
+            self.advertise(topic, msgtype)
+        if not self.clock.wait(t_ns):
+            return  # stopped
+        with self._lock:
+            t = self._topics[topic]
+            if t.msgtype != msgtype:
+                raise OutputError(
+                    f"live view: topic {topic} already has type {t.msgtype}, "
+                    f"cannot publish {msgtype}"
+                )
+            if t.latched:
+                t.last = (t_ns, msg)
+            t.channel.log(msg, log_time=t_ns)
+        self.stats.messages += 1
+        self.stats.bytes += len(msg)
+        self.stats.per_topic[topic] = self.stats.per_topic.get(topic, 0) + 1
+        if abs(t_ns - self._last_time_broadcast) >= 10_000_000:  # the viewer's clock, <= 100 Hz
+            self._server.broadcast_time(t_ns)
+            self._last_time_broadcast = t_ns
+
+    def replay_latched(self) -> None:
+        """Send every latched topic's stored message again (after a seek, a loop or a new
+        subscription)."""
+        with self._lock:
+            for t in self._topics.values():
+                if t.latched and t.last is not None:
+                    t.channel.log(t.last[1], log_time=t.last[0])
+
+    def _on_subscribe(self, client_id: int, channel_id: int) -> None:
+        with self._sub_cond:
+            self._subscribed.setdefault(client_id, set()).add(channel_id)
+            self._sub_cond.notify_all()
+        with self._lock:
+            for t in self._topics.values():
+                if t.latched and t.last is not None and t.channel.id() == channel_id:
+                    t.channel.log(t.last[1], log_time=t.last[0])
+
+    def _on_unsubscribe(self, client_id: int, channel_id: int) -> None:
+        with self._sub_cond:
+            subs = self._subscribed.get(client_id)
+            if subs is not None:
+                subs.discard(channel_id)
+                if not subs:
+                    del self._subscribed[client_id]
+            self._sub_cond.notify_all()
+
+    # ---- playback control
+    def request_seek(self, t_ns: int) -> None:
+        with self._lock:
+            self._seek_ns = int(t_ns)
+        self.clock.reanchor()
+
+    def pop_seek(self) -> int | None:
+        with self._lock:
+            s, self._seek_ns = self._seek_ns, None
+            return s
+
+    def clear_session(self) -> None:
+        """Tell viewers to drop what they have (e.g. before playing the file again)."""
+        self._server.clear_session()
+
+    def broadcast_ended(self) -> None:
+        from foxglove.websocket import PlaybackState, PlaybackStatus
+
+        if self.playback_range_ns is None:
+            return
+        self._server.broadcast_playback_state(
+            PlaybackState(
+                status=PlaybackStatus.Ended,
+                current_time=int(self.clock.last_ns or self.playback_range_ns[1]),
+                playback_speed=float(self.clock.rate or 1.0),
+                did_seek=False,
+                request_id=None,
+            )
+        )
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self.clock.stop()
+        try:
+            self._relay.close()
+        finally:
+            self._server.stop()
+
+
+class _Listener:
+    """foxglove-sdk ServerListener: subscriptions (latched topics) and playback control."""
+
+    def __init__(self, sink: LiveSink) -> None:
+        self.sink = sink
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self.sink._on_subscribe(int(client.id), int(channel.id))
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        self.sink._on_unsubscribe(int(client.id), int(channel.id))
+
+    def on_playback_control_request(self, request: Any) -> Any:
+        from foxglove.websocket import PlaybackCommand, PlaybackState, PlaybackStatus
+
+        clock = self.sink.clock
+        if request.playback_speed and request.playback_speed > 0:
+            clock.set_rate(float(request.playback_speed))
+        if request.seek_time is not None:
+            self.sink.request_seek(int(request.seek_time))
+        if request.playback_command == PlaybackCommand.Pause:
+            clock.pause()
+        elif request.playback_command == PlaybackCommand.Play:
+            clock.resume()
+        current = request.seek_time if request.seek_time is not None else clock.last_ns
+        if current is None:
+            current = self.sink.playback_range_ns[0] if self.sink.playback_range_ns else 0
+        return PlaybackState(
+            status=PlaybackStatus.Paused if clock.paused else PlaybackStatus.Playing,
+            current_time=int(current),
+            playback_speed=float(clock.rate or 1.0),
+            did_seek=request.seek_time is not None,
+            request_id=request.request_id,
+        )
+
+
+# ---- playing a recorded MCAP ----------------------------------------------------------------
+@dataclass(frozen=True)
+class ChannelInfo:
+    topic: str
+    schema_name: str
+    schema: bytes
+    schema_encoding: str
+    message_encoding: str
+    latched: bool
+
+
+@dataclass(frozen=True)
+class McapInfo:
+    path: Path
+    start_ns: int
+    end_ns: int
+    message_count: int
+    channels: dict[int, ChannelInfo]  # by MCAP channel id
+
+
+def _is_transient_local(metadata: dict[str, str]) -> bool:
+    qos = metadata.get("offered_qos_profiles", "")
+    return "durability: 1" in qos or "transient_local" in qos.lower()
+
+
+def read_mcap_info(path: Path | str) -> McapInfo:
+    """Channels, schemas and time span of an MCAP (from its summary, else one scan)."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    p = Path(path)
+    if not p.is_file():
+        raise DatasetError(f"{p}: no such file")
+    try:
+        with open(p, "rb") as fh:
+            reader = make_reader(fh)
+            summary = reader.get_summary()
+            if summary is None or summary.statistics is None:
+                raise DatasetError(
+                    f"{p}: the MCAP has no summary section (an interrupted write?); "
+                    "re-run or repair it with `mcap recover`"
+                )
+            channels = {}
+            for cid, ch in summary.channels.items():
+                sch = summary.schemas.get(ch.schema_id)
+                if sch is None:
+                    raise DatasetError(f"{p}: channel {ch.topic} has no schema")
+                channels[cid] = ChannelInfo(
+                    ch.topic,
+                    sch.name,
+                    sch.data,
+                    sch.encoding,
+                    ch.message_encoding,
+                    ch.topic in LATCHED_TOPICS or _is_transient_local(dict(ch.metadata)),
+                )
+            st = summary.statistics
+            return McapInfo(
+                p,
+                int(st.message_start_time),
+                int(st.message_end_time),
+                int(st.message_count),
+                channels,
+            )
+    except DatasetError:
+        raise
+    except (McapError, OSError, ValueError, EOFError, struct.error) as e:
+        raise DatasetError(f"{p}: not a readable MCAP file ({type(e).__name__}: {e})") from None
+
+
+def _iter_messages(path: Path, start_ns: int | None) -> Iterator[tuple[Any, Any, Any]]:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        reader = make_reader(fh)
+        try:  # mcap >= 1.3 names it `starting_at`; older releases only know `start_time`
+            it = reader.iter_messages(starting_at=start_ns, log_time_order=True)
+        except TypeError:
+            it = reader.iter_messages(start_time=start_ns, log_time_order=True)
+        yield from it
+
+
+@dataclass
+class PlayResult:
+    messages: int = 0
+    loops: int = 0
+    seeks: int = 0
+    finished: bool = False  # reached the end of the file (last loop)
+    stopped_because: str = ""
+
+
+def play_mcap(
+    info: McapInfo,
+    sink: LiveSink,
+    *,
+    loop: bool = False,
+    stop_when_no_clients: Callable[[], bool] | None = None,
+    on_message: Callable[[int], None] | None = None,
+) -> PlayResult:
+    """Send the file's messages to `sink` in log-time order, paced by its clock. Handles seek
+    requests from the viewer; with `loop`, starts again at the end (viewers are told to clear).
+    `stop_when_no_clients()` is polled between messages: when it returns True, playback stops.
+    """
+    res = PlayResult()
+    advertise_mcap(info, sink)
+    start: int | None = None
+    while True:
+        seek: int | None = None
+        for _schema, channel, message in _iter_messages(info.path, start):
+            s = sink.pop_seek()
+            if s is not None:
+                seek = s
+                break
+            if sink.clock.stopped:
+                res.stopped_because = "stopped"
+                return res
+            if stop_when_no_clients is not None and stop_when_no_clients():
+                res.stopped_because = "the viewer disconnected"
+                return res
+            sink.write(
+                channel.topic, info.channels[channel.id].schema_name, message.log_time, message.data
+            )
+            res.messages += 1
+            if on_message is not None:
+                on_message(int(message.log_time))
+        if seek is not None:
+            res.seeks += 1
+            start = max(info.start_ns, min(seek, info.end_ns))
+            sink.clock.reanchor()
+            sink.replay_latched()
+            continue
+        if loop and not sink.clock.stopped:
+            res.loops += 1
+            start = None
+            sink.clear_session()
+            sink.clock.reanchor()
+            sink.replay_latched()
+            continue
+        res.finished = True
+        sink.broadcast_ended()
+        return res
+
+
+def advertise_mcap(info: McapInfo, sink: LiveSink) -> None:
+    """Advertise every channel of the file (with the file's own schemas) and store the first
+    message of each latched channel, so a viewer gets `/tf_static` as soon as it subscribes,
+    even before (or after seeking past) the point where the file has it. Idempotent."""
+    from mcap.reader import make_reader
+
+    for c in info.channels.values():
+        sink.advertise(
+            c.topic,
+            c.schema_name,
+            schema=c.schema,
+            schema_encoding=c.schema_encoding,
+            message_encoding=c.message_encoding,
+            latched=c.latched,
+        )
+
+    latched = {cid: c.topic for cid, c in info.channels.items() if c.latched}
+    if not latched:
+        return
+    with open(info.path, "rb") as fh:
+        reader = make_reader(fh)
+        seen: set[int] = set()
+        for _s, ch, msg in reader.iter_messages(topics=list(latched.values()), log_time_order=True):
+            if ch.id not in seen and not sink.has_latched(ch.topic):
+                sink.set_latched(ch.topic, msg.log_time, msg.data)
+                seen.add(ch.id)
+            if len(seen) == len(latched):
+                break
