@@ -430,7 +430,7 @@ class BagSequence:
         self.T_body_gtsensor: F64 = np.eye(4)
         self._scan(show_progress)
         self.stamp_source = self._choose_camera_stamps()
-        self.entries = self._join_cameras()
+        self.frame_index = self._join_cameras()
         self._check_image_sizes()
 
     # ---- calibration ----------------------------------------------------------------------
@@ -755,7 +755,7 @@ class BagSequence:
     # ---- SequenceSource -------------------------------------------------------------------
     @property
     def frame_times(self) -> I64:
-        return np.array([e.t_ns for e in self.entries], dtype=np.int64)
+        return np.array([e.t_ns for e in self.frame_index], dtype=np.int64)
 
     def frames(
         self,
@@ -767,7 +767,7 @@ class BagSequence:
         """Yield stereo frames in stamp order, decoding each image when its pair is complete."""
         sel = [
             e
-            for e in self.entries
+            for e in self.frame_index
             if (t_start_ns is None or e.t_ns >= t_start_ns)
             and (t_end_ns is None or e.t_ns <= t_end_ns)
             and (include_incomplete or (e.has_left and e.has_right))
@@ -850,7 +850,7 @@ class BagSequence:
                 out.append(f"  {role:<11} (none)")
                 continue
             out.append(f"  {role:<11} {st.topic} [{st.msgtype}] {st.count} messages")
-        out.append(f"  stereo frames: {len(self.entries)} (joined on {self.stamp_source})")
+        out.append(f"  stereo frames: {len(self.frame_index)} (joined on {self.stamp_source})")
         return out
 
 
@@ -1189,9 +1189,9 @@ def check_bag_sequence(seq: BagSequence) -> list[BagFinding]:
             add("warning", f"{st.topic}: {gaps.size} gaps longer than 2.5 periods "
                 f"(longest {float(gaps.max()) / 1e9:.3f} s)")  # fmt: skip
     # stereo pairing
-    n_pairs = sum(1 for e in seq.entries if e.has_left and e.has_right)
-    only0 = sum(1 for e in seq.entries if e.has_left and not e.has_right)
-    only1 = sum(1 for e in seq.entries if e.has_right and not e.has_left)
+    n_pairs = sum(1 for e in seq.frame_index if e.has_left and e.has_right)
+    only0 = sum(1 for e in seq.frame_index if e.has_left and not e.has_right)
+    only1 = sum(1 for e in seq.frame_index if e.has_right and not e.has_left)
     add("info", f"stereo pairs: {n_pairs} joined on {seq.stamp_source}")
     if n_pairs == 0:
         add("error", "no stereo pair: cam0 and cam1 share no timestamp")
