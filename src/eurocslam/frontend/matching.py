@@ -196,7 +196,10 @@ def match_stereo(
         # photometric outliers: cost far above the typical one (ORB-SLAM: SAD > 1.5 x 1.4 x
         # median; squared here because the cost is a sum of squares)
         thr = (1.5 * 1.4) ** 2 * float(np.median(cost[good]))
-        good &= cost <= max(thr, 1e-6)
+        # floor: a 2-grey-level RMS difference per pixel is never an outlier (clean images
+        # otherwise give a median near 0 and reject everything)
+        floor = 4.0 * (2 * config.subpixel_half_window + 1) ** 2
+        good &= cost <= max(thr, floor)
     d = left.uv[cand, 0] - uR_ref
     d_min = geom.fx * geom.baseline / config.max_depth_m
     d_max = geom.fx * geom.baseline / config.min_depth_m
