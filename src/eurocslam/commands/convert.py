@@ -18,7 +18,14 @@ def _time(value: str) -> float:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("sequence", help="sequence folder (containing mav0/) or its mav0/ folder")
+    from eurocslam.dataset.bag import add_source_arguments
+
+    parser.add_argument(
+        "sequence",
+        help="sequence folder (containing mav0/) or its mav0/ folder; also a ROS 1 .bag, a "
+        "ROS 2 bag folder, .db3 or .mcap (e.g. the output of convert)",
+    )
+    add_source_arguments(parser)
     parser.add_argument(
         "-o",
         "--output",
@@ -68,11 +75,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from eurocslam.convert import ConvertOptions, convert
     from eurocslam.dataset import open_sequence
+    from eurocslam.dataset.bag import source_options
     from eurocslam.errors import OutputError
 
     if not str(args.output).endswith(".mcap"):
         raise OutputError(f"{args.output}: the output name must end in .mcap")
-    source = open_sequence(args.sequence)
+    source = open_sequence(args.sequence, **source_options(args))
     opts = ConvertOptions(
         compression=args.compression,
         images=args.images,

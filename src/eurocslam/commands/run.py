@@ -17,7 +17,14 @@ def _time(value: str) -> float:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("sequence", help="sequence folder (containing mav0/) or its mav0/ folder")
+    from eurocslam.dataset.bag import add_source_arguments
+
+    parser.add_argument(
+        "sequence",
+        help="sequence folder (containing mav0/) or its mav0/ folder; also a ROS 1 .bag, a "
+        "ROS 2 bag folder, .db3 or .mcap (e.g. the output of convert)",
+    )
+    add_source_arguments(parser)
     parser.add_argument(
         "-o",
         "--output",
@@ -65,10 +72,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from eurocslam.config import load_config
     from eurocslam.dataset import open_sequence
+    from eurocslam.dataset.bag import source_options
     from eurocslam.runner import RunOptions, run_slam
 
     cfg = load_config(args.config)
-    source = open_sequence(args.sequence)
+    source = open_sequence(args.sequence, **source_options(args))
     opts = RunOptions(
         use_imu=not args.no_imu,
         start=args.start,

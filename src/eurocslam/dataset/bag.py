@@ -121,7 +121,10 @@ class TopicMap:
         mapping: dict[str, str] = {}
         for spec in specs or ():
             if "=" not in spec:
-                raise DatasetError(f"--topic '{spec}': expected ROLE=TOPIC, e.g. cam0=/my/left")
+                raise DatasetError(
+                    f"--topic '{spec}': expected ROLE=TOPIC, e.g. cam0=/my/left (--topic maps "
+                    "input bag topics; convert's --topics selects output topics)"
+                )
             key, topic = spec.split("=", 1)
             mapping[key] = topic
         return cls().with_topics(mapping)
@@ -935,8 +938,8 @@ def add_source_arguments(parser: Any) -> None:
         metavar="ROLE=TOPIC",
         action="append",
         default=[],
-        help="map a bag topic to a role (cam0, cam1, imu, groundtruth, leica), e.g. "
-        "--topic cam0=/my/left; repeatable",
+        help="input bags: read this topic for a role (cam0, cam1, imu, groundtruth, leica), "
+        "e.g. --topic cam0=/my/left; repeatable",
     )
 
 
