@@ -201,3 +201,23 @@ def test_write_error_is_output_error(tmp_path: Path) -> None:
     (tmp_path / "file").write_text("")
     with pytest.raises(OutputError):
         write_tum(tmp_path / "file" / "sub.tum", _traj(3))
+
+
+def test_free_text_comments_are_not_headers(tmp_path: Path) -> None:
+    f = tmp_path / "c.tum"
+    f.write_text(
+        "# poses of each segment after a reset are in a new world frame w x y z\n"
+        "1.0 0 0 0 0 0 0 1\n1.1 1 0 0 0 0 0 1\n"
+    )
+    tr = read_tum(f)
+    assert tr.segment is None
+    assert np.allclose(tr.q_wxyz, [1, 0, 0, 0])
+
+
+def test_reads_what_the_run_writes(tmp_path: Path) -> None:
+    tr = _traj(20)
+    seg = np.repeat(np.array([0, 1], dtype=np.int64), [8, 12])
+    tr = Trajectory(tr.t_ns, tr.p, tr.q_wxyz, seg, "final")
+    write_tum(tmp_path / "f.tum", tr, "eurocslam vio: final trajectory, body in world\nline two")
+    back = read_trajectory(tmp_path / "f.tum")
+    assert np.array_equal(back.segment, seg) and np.array_equal(back.t_ns, tr.t_ns)

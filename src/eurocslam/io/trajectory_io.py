@@ -284,6 +284,8 @@ def _detect_layout(path: Path, lines: list[str], fmt: Format) -> _Layout:
     sep = "," if "," in ln else None
     ncols = len(_split(ln, sep))
     names = _header_names(lines)
+    if names is not None and len(names) != ncols:
+        names = None  # free-text comment, not a column header
     if fmt == "auto":
         fmt = "euroc" if sep == "," else "tum"
         if names and any(n.lower().startswith("q_rs_w") for n in names):
