@@ -369,7 +369,7 @@ def test_play_mcap_serves_the_file_paced(run_mcap: Path) -> None:
         res = result["res"]
         assert res.finished and res.messages == info.message_count
         span = (info.end_ns - info.start_ns) / 1e9
-        assert span / 2.0 * 0.8 < result["wall"] < span / 2.0 + 1.0  # paced at 2x
+        assert span / 2.0 * 0.8 < result["wall"] < span / 2.0 + 3.0  # paced at 2x
     finally:
         sink.close()
 
@@ -394,20 +394,17 @@ def test_play_mcap_pause_and_seek_from_the_viewer(run_mcap: Path) -> None:
 
         def control(got, ws):  # type: ignore[no-untyped-def]
             n = len(got.messages.get("/slam/pose", []))
-            if n >= 3 and "pause" not in sent:
+            now = time.monotonic()
+            if n >= 3 and not sent:
                 sent.append("pause")
-                result["paused_at"] = time.monotonic()
+                result["paused_at"] = now
                 return playback_control(1, 1.0, None, "pause-1")
-            if (
-                "pause" in sent
-                and "seek" not in sent
-                and time.monotonic() - result["paused_at"] > 0.6
-            ):
-                result["poses_while_paused"] = n - result.setdefault("n_at_pause", n)
+            if sent == ["pause"] and "n1" not in result and now - result["paused_at"] > 0.4:
+                result["n1"] = n  # messages in flight when the pause arrived are in by now
+            if sent == ["pause"] and now - result["paused_at"] > 1.0:
+                result["n2"] = n
                 sent.append("seek")
                 return playback_control(0, 4.0, seek_to, "seek-1")
-            if "pause" in sent and "n_at_pause" not in result:
-                result["n_at_pause"] = n
             return None
 
         got = run_session(
@@ -419,12 +416,15 @@ def test_play_mcap_pause_and_seek_from_the_viewer(run_mcap: Path) -> None:
         )  # Ended
         th.join(10)
         assert sent == ["pause", "seek"]
-        assert result["poses_while_paused"] <= 2  # (in flight when the pause arrived)
+        assert result["n2"] == result["n1"]  # nothing played while paused
+        assert result["n2"] < 15  # so the seek to frame 15 is a jump forward
         res = result["res"]
         assert res.finished and res.seeks == 1
         pose_times = [t for t, _ in got.messages["/slam/pose"]]
+        assert pose_times.count(seek_to) == 1
         i = pose_times.index(seek_to)
-        assert pose_times[i - 1] < seek_to - 50_000_000  # frames before the seek point skipped
+        assert i == result["n2"]  # the first pose after the seek is the seek target
+        assert pose_times[i - 1] < seek_to - 50_000_000  # the frames in between were skipped
         assert pose_times[-1] == T0 + (N_FRAMES - 1) * 50_000_000
         assert sink.clock.rate == 4.0
     finally:
