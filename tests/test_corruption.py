@@ -327,6 +327,20 @@ def m_imu_no_overlap(m: Path) -> None:
     _edit(_imu(m), fn)
 
 
+def m_cam_integer_seconds(m: Path) -> None:
+    def conv(ls: list[str]) -> list[str]:
+        return [ls[0]] + [f"{int(ln.split(',')[0]) // 10**9},{ln.split(',')[1]}" for ln in ls[1:]]
+
+    _edit(m / "cam0" / "data.csv", conv)
+
+
+def m_cam1_offset(m: Path) -> None:
+    def conv(ls: list[str]) -> list[str]:
+        return [ls[0]] + [f"{int(ln.split(',')[0]) + 1000},{ln.split(',')[1]}" for ln in ls[1:]]
+
+    _edit(m / "cam1" / "data.csv", conv)
+
+
 def m_rate_mismatch(m: Path) -> None:
     _set_yaml(m, "cam0", "rate_hz: 20", "rate_hz: 40")
 
@@ -404,6 +418,11 @@ CASES: dict[str, Case] = {
                                 "ok", line=1),
     "imu does not overlap": Case(m_imu_no_overlap, ERROR, "does not overlap", "imu0/data.csv",
                                  "ok"),
+    "cam timestamps in integer seconds": Case(m_cam_integer_seconds, ERROR, "(timestamps in "
+                                              "seconds?)", "cam0/data.csv",
+                                              "raises:seconds vs nanoseconds"),
+    "cam1 clock offset": Case(m_cam1_offset, ERROR, "share no timestamp", "cam1/data.csv",
+                              "raises:share no timestamp"),
     "rate mismatch": Case(m_rate_mismatch, WARNING, "differs from sensor.yaml rate_hz",
                           "cam0/data.csv", "ok"),
 }  # fmt: skip

@@ -269,7 +269,6 @@ class AslSequence:
         self.groundtruth = self._read_groundtruth()
         self.leica = self._read_leica()
         self.entries = self._join_cameras()
-        self._check_time_units()
 
     # ---- tables -----------------------------------------------------------------------------
     def _read_imu(self) -> ImuData:
@@ -356,6 +355,14 @@ class AslSequence:
     def _join_cameras(self) -> list[FrameEntry]:
         c0 = self._camera("cam0")
         c1 = self._camera("cam1")
+        self._check_time_units(
+            np.fromiter(c0.keys(), dtype=np.int64), np.fromiter(c1.keys(), dtype=np.int64)
+        )
+        if not c0.keys() & c1.keys():
+            raise DatasetError(
+                f"{self.mav0 / 'cam0' / 'data.csv'} and {self.mav0 / 'cam1' / 'data.csv'} share no "
+                "timestamp: no stereo pair (cameras are paired on identical timestamps)"
+            )
         entries = []
         for t in sorted(set(c0) | set(c1)):
             left, right = c0.get(t), c1.get(t)
@@ -366,11 +373,12 @@ class AslSequence:
             entries.append(FrameEntry(t, left, right))
         return entries
 
-    def _check_time_units(self) -> None:
+    def _check_time_units(self, t_cam0: I64, t_cam1: I64) -> None:
         """Refuse streams whose timestamps differ by orders of magnitude (s vs ns mix-ups)."""
         streams: dict[Path, I64] = {
             self.mav0 / "imu0" / "data.csv": self.imu.t_ns,
-            self.mav0 / "cam0" / "data.csv": self.frame_times,
+            self.mav0 / "cam0" / "data.csv": t_cam0,
+            self.mav0 / "cam1" / "data.csv": t_cam1,
         }
         if self.groundtruth is not None:
             streams[self.mav0 / "state_groundtruth_estimate0" / "data.csv"] = self.groundtruth.t_ns
