@@ -14,6 +14,8 @@ the frame's time):
 | /slam/stats | std_msgs/Float64MultiArray | state, counts, segment (`STATS_LABELS`) |
 | /slam/imu_bias | std_msgs/Float64MultiArray | gyro bias xyz [rad/s], accel bias xyz [m/s^2] |
 | /slam/velocity | std_msgs/Float64MultiArray | world velocity xyz [m/s], speed |
+| /slam/position_error | std_msgs/Float64MultiArray | estimate - aligned GT: xyz, norm [m] |
+| /groundtruth/drone | visualization_msgs/MarkerArray | the Firefly on `gt_body` (green) |
 
 Per keyframe: /slam/path (nav_msgs/Path of the segment's smoothed keyframes) and
 /slam/landmarks (sensor_msgs/PointCloud2 of the smoother's active map, in `world`).
@@ -37,7 +39,7 @@ from eurocslam.config import OutputConfig
 from eurocslam.dataset.types import GroundTruth, StereoFrame
 from eurocslam.geometry import F64, make_T, quat_wxyz_to_rot, rot_z
 from eurocslam.io import drone, ros2
-from eurocslam.io.sensor_streams import FRAME_GT_WORLD, SensorStreams
+from eurocslam.io.sensor_streams import FRAME_GT_BODY, FRAME_GT_WORLD, SensorStreams
 from eurocslam.io.sink import Sink
 
 if TYPE_CHECKING:
@@ -48,6 +50,7 @@ BODY = "body"
 STATS_LABELS = ("state", "features", "stereo", "tracked", "landmarks", "segment", "keyframe")
 BIAS_LABELS = ("bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z")
 VEL_LABELS = ("vx", "vy", "vz", "speed")
+ERROR_LABELS = ("ex", "ey", "ez", "norm")  # estimate - ground truth (aligned), world, metres
 TRACKED_RGBA = (0.1, 1.0, 0.2, 1.0)
 UNTRACKED_RGBA = (1.0, 0.55, 0.0, 1.0)
 
@@ -60,6 +63,8 @@ SLAM_TOPICS = (
     "/slam/stats",
     "/slam/imu_bias",
     "/slam/velocity",
+    "/slam/position_error",
+    "/groundtruth/drone",
     "/slam/path",
     "/slam/landmarks",
     "/slam/path_final",
@@ -135,6 +140,7 @@ class SlamMcapWriter:
             self._w("/tf", ros2.TF_MESSAGE, t, ros2.tf_message([ros2.Transform(t, WORLD, BODY, T)]))
             self._w("/slam/pose", ros2.POSE_STAMPED, t, ros2.pose_stamped(t, WORLD, T))
             self._w("/slam/drone", drone.MSGTYPE, t, drone.drone_markers(BODY, t))
+            self._write_groundtruth_overlay(t, T)
         self._w("/slam/state", ros2.STRING, t, ros2.string(out.state.value))
         n_active = 0
         if out.is_keyframe:
@@ -195,6 +201,28 @@ class SlamMcapWriter:
                     t, "cam0", fr.draw_uv, ns="features", type=4, scale=4.0, outline_colors=colors
                 ),
             )
+
+    def _write_groundtruth_overlay(self, t: int, T_world_body: F64) -> None:
+        """Once the ground truth is aligned: its drone (another colour, on `gt_body`) and the
+        position error of the estimate against it, in `world` (plot-friendly)."""
+        if self.T_world_gtworld is None or self.gt is None:
+            return
+        T_gt = _gt_pose_at(self.gt, t)
+        if T_gt is None:
+            return
+        self._w(
+            "/groundtruth/drone",
+            drone.MSGTYPE,
+            t,
+            drone.drone_markers(FRAME_GT_BODY, t, drone.GROUNDTRUTH_COLOR, ns="drone_gt"),
+        )
+        e = T_world_body[:3, 3] - (self.T_world_gtworld @ T_gt)[:3, 3]
+        self._w(
+            "/slam/position_error",
+            ros2.FLOAT64_MULTI_ARRAY,
+            t,
+            ros2.float64_multi_array([e[0], e[1], e[2], float(np.linalg.norm(e))], ERROR_LABELS),
+        )
 
     def finish(self, result: RunResult) -> None:
         """The rest of the sensor streams, then the final map and trajectory."""
