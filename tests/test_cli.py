@@ -31,14 +31,14 @@ def seq(pristine: Path, tmp_path: Path) -> Path:
 
 
 def test_doctor_exit_codes(
-    v101_micro: Path, pristine: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    mh01_first5: Path, pristine: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     assert main(["doctor", str(pristine)]) == 0
     out = capsys.readouterr()
     assert out.out.splitlines()[-1].endswith("-> exit 0 (ok)") and out.err == ""
-    assert main(["doctor", "--sample", "2", str(v101_micro)]) == 1
+    assert main(["doctor", str(mh01_first5)]) == 1
     out = capsys.readouterr()
-    assert "WARNING mav0/cam1/data.csv:97: 4 of 99 listed image(s) missing" in out.out
+    assert "WARNING mav0/imu0/data.csv: IMU ends 0.185 s before the last stereo frame" in out.out
     assert main(["doctor", str(tmp_path / "absent")]) == 2
     out = capsys.readouterr()
     assert out.out.splitlines()[1].startswith("ERROR")
