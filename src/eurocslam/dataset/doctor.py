@@ -933,7 +933,8 @@ class _Doctor:
         try:
             AslSequence(self.path)
         except EurocSlamError as e:
-            self.add(ERROR, "reader", f"the reader refuses this sequence (convert/run stop): {e}")
+            msg = str(e).replace(f"{self.root}{os.sep}", "")
+            self.add(ERROR, "reader", f"the reader refuses this sequence (convert/run stop): {msg}")
         except Exception as e:
             self.add(
                 ERROR,
