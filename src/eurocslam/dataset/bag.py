@@ -889,7 +889,8 @@ _FAST_LAYOUTS: dict[str, tuple[int, int, tuple[int, ...]]] = {
 
 def fast_values(raw: bytes | memoryview, ros2: bool, msgtype: str) -> tuple[int, tuple[float, ...]]:
     """`message_values` and the header stamp straight from the serialized bytes (ROS 1 or plain
-    CDR), about 30x faster than a full decode. Callers verify it against the full decoder."""
+    CDR), 3-5x faster than a full decode (measured: 5-9 us vs 17-42 us per Imu message).
+    Callers verify it against the full decoder."""
     extra, n, keep = _FAST_LAYOUTS[msgtype]
     if ros2:
         if raw[0] != 0 or raw[1] > 1:
