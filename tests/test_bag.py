@@ -311,6 +311,30 @@ def test_unpaired_frames_are_counted_and_yielded_on_request(tmp_path: Path) -> N
     assert findings_exit_code(findings) == 1
 
 
+@pytest.mark.parametrize("zero_stamps", [False, True])
+def test_unsynchronised_cameras_pair_on_the_nearest_stamp(
+    zero_stamps: bool, tmp_path: Path
+) -> None:
+    """cam1 stamped 1.5 ms after cam0 (header stamps, or log times when headers are zero)."""
+    mini = _mini_seq()
+    path = write_rosbag(
+        mini, tmp_path / "offset.bag", "ros1", cam1_offset_ns=1_500_000,
+        zero_header_stamps=zero_stamps,
+    )  # fmt: skip
+    seq = BagSequence(path)
+    assert seq.stamp_source == ("log time" if zero_stamps else "header stamp")
+    assert any("6 stereo pairs joined on the nearest stamp" in n and "1.500 ms" in n
+               for n in seq.notes)  # fmt: skip
+    frames = list(seq.frames())
+    assert [f.t_ns for f in frames] == mini.ts  # a pair takes the cam0 stamp
+    np.testing.assert_array_equal(frames[4].right, mini.imgs[4][1])
+    assert seq.skips.total == 0
+    # beyond the tolerance (5 ms at 20 Hz) nothing is paired
+    far = BagSequence(write_rosbag(mini, tmp_path / "far.bag", "ros1", cam1_offset_ns=20_000_000))
+    assert list(far.frames()) == []
+    assert far.skips.counts == {"frame in cam0 only": 6, "frame in cam1 only": 6}
+
+
 def test_header_stamp_parser_matches_both_serializations() -> None:
     from rosbags.typesys import Stores, get_typestore
 

@@ -722,6 +722,7 @@ class BagSequence:
     def _join_cameras(self) -> list[BagEntry]:
         c0 = self._camera_map("cam0")
         c1 = self._camera_map("cam1")
+        c1 = self._snap_cam1(c0, c1)
         entries = []
         for t in sorted(c0.keys() | c1.keys()):
             if t not in c0:
@@ -731,6 +732,40 @@ class BagSequence:
             logs = [x for x in (c0.get(t), c1.get(t)) if x is not None]
             entries.append(BagEntry(t, t in c0, t in c1, min(logs)))
         return entries
+
+    def _snap_cam1(self, c0: dict[int, int], c1: dict[int, int]) -> dict[int, int]:
+        """Pair cam1 stamps that match no cam0 stamp exactly with the nearest unmatched cam0
+        stamp within min(5 ms, 0.2 frame periods): cameras without hardware-synchronised stamps,
+        or log times (which always differ a little). The pair takes the cam0 stamp."""
+        self._cam1_alias: dict[int, int] = {}
+        un1 = sorted(c1.keys() - c0.keys())
+        un0 = np.array(sorted(c0.keys() - c1.keys()), dtype=np.int64)
+        if not un1 or un0.size == 0:
+            return c1
+        rate = self.rig.cam0.rate_hz
+        tol = min(5_000_000, int(0.2e9 / rate)) if rate > 0 else 5_000_000
+        used: set[int] = set()
+        worst = 0
+        for t1 in un1:
+            i = int(np.searchsorted(un0, t1))
+            best = None
+            for j in (i - 1, i):
+                if 0 <= j < un0.size and int(un0[j]) not in used:
+                    d = abs(int(un0[j]) - t1)
+                    if d <= tol and (best is None or d < abs(best - t1)):
+                        best = int(un0[j])
+            if best is not None:
+                self._cam1_alias[t1] = best
+                used.add(best)
+                worst = max(worst, abs(best - t1))
+        if not self._cam1_alias:
+            return c1
+        self.notes.append(
+            f"{len(self._cam1_alias)} stereo pairs joined on the nearest stamp (cam0 and cam1 "
+            f"differ by up to {worst / 1e6:.3f} ms; tolerance {tol / 1e6:.1f} ms); a pair takes "
+            "the cam0 stamp"
+        )
+        return {self._cam1_alias.get(t, t): log for t, log in c1.items()}
 
     def _check_image_sizes(self) -> None:
         for role in ("cam0", "cam1"):
@@ -787,6 +822,8 @@ class BagSequence:
             for conn, log_ns, raw in reader.messages(connections=cam_conns, start=start):
                 side = 0 if self._role_of(conn) == "cam0" else 1
                 t = int(log_ns) if use_log else header_stamp_ns(raw, self.ros2)
+                if side == 1:
+                    t = self._cam1_alias.get(t, t)
                 i = pos.get(t)
                 if i is None or i < next_i:
                     continue  # outside the selection, or a dropped duplicate
@@ -977,13 +1014,15 @@ def write_rosbag(
     topics: TopicMap | None = None,
     max_frames: int | None = None,
     zero_header_stamps: bool = False,
+    cam1_offset_ns: int = 0,
 ) -> Path:
     """Write a `SequenceSource` as a ROS 1 bag or a ROS 2 bag folder (sqlite3 or MCAP storage),
     with EuRoC's topic names: cam0/cam1 `sensor_msgs/Image` (`encoding` mono8, bgr8, rgb8 or
     mono16), `/imu0`, ground truth as PoseStamped on `/groundtruth/pose` (`groundtruth="pose"`)
     or as EuRoC's raw Vicon TransformStamped (`"vicon"`: the body pose moved to the marker
     frame), and Leica PointStamped on `/leica/position`. Messages in stamp order, log time =
-    stamp (or header stamps all zero with `zero_header_stamps`). Returns the written path.
+    stamp (or header stamps all zero with `zero_header_stamps`); `cam1_offset_ns` shifts cam1's
+    stamps and log times (cameras without synchronised stamps). Returns the written path.
     """
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import StoragePlugin
@@ -1079,7 +1118,8 @@ def write_rosbag(
                 return
             for side, img in ((0, f.left), (1, f.right)):
                 if img is not None:
-                    yield f.t_ns, side, image(f.t_ns, img, f"cam{side}")
+                    t = f.t_ns + (cam1_offset_ns if side == 1 else 0)
+                    yield t, side, image(t, img, f"cam{side}")
 
     def add_stream(topic: str, typ: str, n: int, t_ns: Any, make: Any) -> None:
         k = len(channels)
