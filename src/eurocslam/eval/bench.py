@@ -271,7 +271,10 @@ def prepare_sequences(plan: BenchPlan, out_dir: Path, progress: bool | None) -> 
         want = json.dumps(s.synth, sort_keys=True)
         if not (spec_file.exists() and spec_file.read_text() == want):
             print(f"eurocslam bench: generating synthetic sequence '{s.name}'", file=sys.stderr)
-            synthesize(spec, dest, progress, overwrite=True)
+            # one rendering process: the fork pool of synthesize() was seen to deadlock when
+            # started from a process that already runs threads (reported); bench
+            # parallelises over runs anyway
+            synthesize(spec, dest, progress, workers=1, overwrite=True)
             spec_file.write_text(want)
         paths[s.name] = dest
     return paths
