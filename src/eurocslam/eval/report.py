@@ -64,7 +64,9 @@ def _row(name: str, s: Stats, digits: int = 4) -> str:
 def _align_text(r: EvalResult) -> str:
     cfg = r.config
     a = cfg.align + (f" on the first {cfg.align_first} poses" if cfg.align_first else "")
-    if len(r.segments) == 1:
+    if len(r.segments) > 1:
+        a += f", each of the {len(r.segments)} segments aligned on its own"
+    else:
         al = r.segments[0].alignment
         if al.mode == "sim3":
             a += f", scale {al.s:.4f}"
