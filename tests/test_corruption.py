@@ -533,3 +533,48 @@ def test_doctor_never_raises_on_unreadable_paths(tmp_path: Path) -> None:
     f = tmp_path / "file.txt"
     f.write_text("x")
     assert diagnose(f).exit_code == 2
+
+
+# ---- random damage: neither the doctor nor the reader may crash ---------------------------------
+
+
+def _random_damage(m: Path, rng: np.random.Generator) -> str:
+    files = sorted(
+        p for p in m.rglob("*") if p.is_file() and (p.suffix != ".png" or rng.random() < 0.05)
+    )
+    target = files[int(rng.integers(len(files)))]
+    if target.is_symlink():
+        materialise(target)
+    data = bytearray(target.read_bytes())
+    how = int(rng.integers(4))
+    if how == 0 and data:  # truncate anywhere
+        del data[int(rng.integers(len(data))) :]
+    elif how == 1 and data:  # overwrite a few bytes with anything
+        for _ in range(int(rng.integers(1, 6))):
+            data[int(rng.integers(len(data)))] = int(rng.integers(256))
+    elif how == 2 and data:  # drop a slice
+        a = int(rng.integers(len(data)))
+        del data[a : a + int(rng.integers(1, 200))]
+    else:  # remove the file
+        target.unlink()
+        return f"removed {target}"
+    target.write_bytes(bytes(data))
+    return f"damage {how} on {target}"
+
+
+@pytest.mark.parametrize("seed", range(16))
+def test_random_damage_never_crashes(seq: Path, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    what = [_random_damage(seq / "mav0", rng) for _ in range(2)]
+    report = diagnose(seq, sample=2)
+    assert not report.by_check("internal"), (what, report.format_text())
+    try:
+        s = AslSequence(seq)
+    except DatasetError as e:
+        assert "\n" not in str(e)
+        assert report.exit_code == 2, (what, str(e), report.format_text())
+        return
+    for t in {int(w.rsplit("/", 1)[1][:-4]) for w in what if w.endswith(".png")}:
+        for f in s.frames(include_incomplete=True, t_start_ns=t, t_end_ns=t):
+            for img in (f.left, f.right):
+                assert img is None or (img.dtype == np.uint8 and img.shape == (480, 752))

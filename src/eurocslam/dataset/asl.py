@@ -91,6 +91,26 @@ def _looks_like_seconds(tok: str) -> bool:
     return "." in tok or "e" in tok.lower() or v < 1e12
 
 
+INT64_MAX = 2**63 - 1
+
+
+def parse_timestamp(tok: str, where: str) -> int:
+    """An integer-nanosecond timestamp in [0, 2^63); `DatasetError` naming `where` otherwise."""
+    try:
+        t = int(tok)
+    except ValueError:
+        hint = " (looks like seconds; expected integer nanoseconds)"
+        raise DatasetError(
+            f"{where}: timestamp '{tok}' is not an integer"
+            + (hint if _looks_like_seconds(tok) else "")
+        ) from None
+    if not 0 <= t <= INT64_MAX:
+        raise DatasetError(
+            f"{where}: timestamp '{tok}' is out of range (integer nanoseconds, 0 <= t < 2^63)"
+        )
+    return t
+
+
 def parse_numeric_rows(rows: list[str], ncols: int) -> tuple[I64, np.ndarray] | None:
     """Fast path: parse well-formed rows (exactly `ncols` comma-separated numbers, an integer
     timestamp first, finite values) in C. Returns None when any row is not like that; the caller
@@ -100,7 +120,7 @@ def parse_numeric_rows(rows: list[str], ncols: int) -> tuple[I64, np.ndarray] | 
     try:
         t = np.loadtxt(rows, delimiter=",", dtype=np.int64, usecols=0, ndmin=1)
         v = np.loadtxt(rows, delimiter=",", dtype=np.float64, usecols=range(1, ncols), ndmin=2)
-    except ValueError:
+    except (ValueError, OverflowError):
         return None
     if t.shape[0] != len(rows) or v.shape != (len(rows), ncols - 1) or not np.isfinite(v).all():
         return None
@@ -133,15 +153,7 @@ def read_numeric_csv(path: Path, ncols: int, skips: SkipReport | None = None) ->
                 skips.add("truncated last row", f"{path}:{no}")
                 continue
             raise DatasetError(f"{path}:{no}: expected {ncols} columns, found {len(parts)}")
-        try:
-            t[n] = int(parts[0])
-        except ValueError:
-            if _looks_like_seconds(parts[0]):
-                raise DatasetError(
-                    f"{path}:{no}: timestamp '{parts[0]}' looks like seconds; EuRoC timestamps "
-                    "are integer nanoseconds"
-                ) from None
-            raise DatasetError(f"{path}:{no}: timestamp '{parts[0]}' is not an integer") from None
+        t[n] = parse_timestamp(parts[0], f"{path}:{no}")
         try:
             vals[n] = [float(s) for s in parts[1:]]
         except ValueError:
@@ -171,14 +183,7 @@ def read_image_csv(path: Path, skips: SkipReport | None = None) -> tuple[I64, li
                 skips.add("truncated last row", f"{path}:{no}")
                 continue
             raise DatasetError(f"{path}:{no}: expected 2 columns (timestamp, filename)")
-        try:
-            ts.append(int(parts[0]))
-        except ValueError:
-            hint = " (looks like seconds; expected integer nanoseconds)"
-            raise DatasetError(
-                f"{path}:{no}: timestamp '{parts[0]}' is not an integer"
-                + (hint if _looks_like_seconds(parts[0]) else "")
-            ) from None
+        ts.append(parse_timestamp(parts[0], f"{path}:{no}"))
         names.append(parts[1])
         nos.append(no)
     return np.array(ts, dtype=np.int64), names, np.array(nos, dtype=np.int64)

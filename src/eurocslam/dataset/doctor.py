@@ -34,6 +34,7 @@ from eurocslam.dataset.asl import (
     PNG_SIGNATURE,
     decode_image,
     parse_numeric_rows,
+    parse_timestamp,
     resolve_mav0,
 )
 from eurocslam.dataset.calib import (
@@ -487,8 +488,8 @@ class _Doctor:
                 probs.setdefault(kind, _Problems()).add(no, f"{len(parts)} columns")
                 continue
             try:
-                ti = int(parts[0])
-            except ValueError:
+                ti = parse_timestamp(parts[0], "")
+            except EurocSlamError:
                 kind = "seconds" if _looks_like_seconds(parts[0]) else "timestamp"
                 probs.setdefault(kind, _Problems()).add(no, repr(parts[0]))
                 continue
@@ -519,7 +520,7 @@ class _Doctor:
                 ERROR,
                 "{n} timestamp(s) look like seconds ({ex}); EuRoC timestamps are integer ns",
             ),
-            "timestamp": (ERROR, "{n} timestamp(s) are not integers: {ex}"),
+            "timestamp": (ERROR, "{n} timestamp(s) are not integer ns in [0, 2^63): {ex}"),
             "filename": (ERROR, "{n} row(s) with an empty file name"),
             "number": (ERROR, "{n} row(s) with a non-numeric value: {ex}"),
             "finite": (ERROR, "{n} row(s) with a non-finite value (nan/inf): {ex}"),
