@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +29,7 @@ from eurocslam.config import RunConfig
 from eurocslam.dataset.types import SequenceSource
 from eurocslam.errors import EurocSlamError, OutputError
 from eurocslam.io.ply import write_ply
+from eurocslam.io.sink import Sink
 from eurocslam.io.trajectory_io import Trajectory, write_euroc_csv, write_tum
 from eurocslam.pipeline import FrameOutput, RunResult, SlamPipeline
 from eurocslam.progress import bar
@@ -79,11 +81,14 @@ def run_slam(
     out_dir: Path | str,
     cfg: RunConfig | None = None,
     options: RunOptions | None = None,
+    extra_sinks: Sequence[Sink] = (),
 ) -> RunResult:
+    """`extra_sinks` (e.g. the live view's `io.live.LiveSink`) receive every message that goes
+    into run.mcap, in the same order, from the pipeline thread; the caller closes them."""
     from eurocslam.convert import calibration_attachments, resolve_time, sequence_start_ns
     from eurocslam.io.mcap_writer import McapSink
     from eurocslam.io.sensor_streams import SensorStreams, StreamOptions
-    from eurocslam.io.sink import ThreadedSink
+    from eurocslam.io.sink import TeeSink, ThreadedSink
     from eurocslam.io.slam_topics import SlamMcapWriter
 
     cfg = cfg or RunConfig()
@@ -127,8 +132,9 @@ def run_slam(
                 "mode": "stereo-inertial" if opt.use_imu else "visual-only",
             },
         )
-        streams.write_static(sink)
-        writer = SlamMcapWriter(sink, streams, source.groundtruth, cfg.output)
+        dest = TeeSink([sink, *extra_sinks]) if extra_sinks else sink
+        streams.write_static(dest)
+        writer = SlamMcapWriter(dest, streams, source.groundtruth, cfg.output)
         observers.append(writer)
 
     pipeline = SlamPipeline(source, cfg, use_imu=opt.use_imu, observers=observers)

@@ -67,16 +67,76 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="how camera images go into run.mcap (as in convert)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    live = parser.add_argument_group("live view (Foxglove WebSocket)")
+    live.add_argument(
+        "--live",
+        action="store_true",
+        help="also stream every run.mcap topic live while processing: open Foxglove and "
+        "connect to ws://localhost:PORT (layout: layouts/eurocslam.json)",
+    )
+    live.add_argument("--port", type=int, help="live view port (default 8765; 0: any free port)")
+    live.add_argument(
+        "--host", help="live view address (default 127.0.0.1, this machine only; 0.0.0.0: all)"
+    )
+    live.add_argument(
+        "--rate",
+        type=float,
+        help="live view pacing, x the data's own rate (default 1; 0 = as fast as possible)",
+    )
+
+
+def _check_live_args(args: argparse.Namespace) -> None:
+    from eurocslam.errors import EurocSlamError
+
+    if not args.live:
+        given = [f for f in ("port", "host", "rate") if getattr(args, f) is not None]
+        if given:
+            raise EurocSlamError(f"--{given[0]} is an option of the live view: add --live")
+        return
+    if args.no_mcap:
+        raise EurocSlamError("--live streams what goes into run.mcap: drop --no-mcap")
+    if args.rate is not None and args.rate < 0:
+        raise EurocSlamError(f"--rate must be >= 0 (0 = as fast as possible), got {args.rate}")
+
+
+def _start_live(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+    from eurocslam.io.live import DEFAULT_PORT, LiveSink
+
+    rate = 1.0 if args.rate is None else args.rate
+
+    sink = LiveSink(
+        host=args.host or "127.0.0.1",
+        port=DEFAULT_PORT if args.port is None else args.port,
+        rate=rate or None,
+    )
+    print(
+        f"eurocslam run: live view on {sink.url} (Foxglove: Open connection > Foxglove "
+        "WebSocket; layout: layouts/eurocslam.json)",
+        file=sys.stderr,
+        flush=True,
+    )
+    return sink
 
 
 def run(args: argparse.Namespace) -> int:
     from eurocslam.config import load_config
     from eurocslam.dataset import open_sequence
     from eurocslam.dataset.bag import source_options
-    from eurocslam.runner import RunOptions, run_slam
 
+    _check_live_args(args)
     cfg = load_config(args.config)
     source = open_sequence(args.sequence, **source_options(args))
+    live_sink = _start_live(args) if args.live else None
+    try:
+        return _run(args, cfg, source, live_sink)
+    finally:  # also on Ctrl-C (the CLI reports it, exit 130) and on errors
+        if live_sink is not None:
+            live_sink.close()
+
+
+def _run(args: argparse.Namespace, cfg, source, live_sink) -> int:  # type: ignore[no-untyped-def]
+    from eurocslam.runner import RunOptions, run_slam
+
     opts = RunOptions(
         use_imu=not args.no_imu,
         start=args.start,
@@ -86,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         images=args.images,
         progress=False if args.no_progress else None,
     )
-    result = run_slam(source, args.output, cfg, opts)
+    result = run_slam(source, args.output, cfg, opts, extra_sinks=[live_sink] if live_sink else ())
     for line in result.summary.lines():
         print(line)
     if source.skips.total:
@@ -94,4 +154,13 @@ def run(args: argparse.Namespace) -> int:
         for line in source.skips.lines():
             print(f"  {line}", file=sys.stderr)
     print(f"outputs in {args.output}")
+    if live_sink is not None and live_sink.n_clients > 0:
+        print(
+            "eurocslam run: the live view keeps the final state until the viewer disconnects "
+            "(Ctrl-C to stop)",
+            file=sys.stderr,
+            flush=True,
+        )
+        while not live_sink.wait_all_disconnected(0.5):
+            pass
     return 0

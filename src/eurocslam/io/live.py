@@ -50,6 +50,7 @@ SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
 DEFAULT_PORT = 8765
 LATCHED_TOPICS = frozenset({"/tf_static"})
 _MAX_LAG_S = 0.5  # when the producer falls this far behind the pacing clock, re-anchor it
+_LATCH_RESEND_S = (0.3, 1.5)  # latched messages go again this long after a subscription
 
 
 def _require_live_deps() -> None:
@@ -472,7 +473,19 @@ class LiveSink:
         with self._sub_cond:
             self._subscribed.setdefault(client_id, set()).add(channel_id)
             self._sub_cond.notify_all()
+        self._resend_latched(channel_id)
+        # foxglove-sdk may call on_subscribe before the client's sink is registered for the
+        # channel (its issue "race where on_subscribe is called before the channel is
+        # registered"), which drops a message logged right here; send it again shortly after.
+        for delay in _LATCH_RESEND_S:
+            timer = threading.Timer(delay, self._resend_latched, args=(channel_id,))
+            timer.daemon = True
+            timer.start()
+
+    def _resend_latched(self, channel_id: int) -> None:
         with self._lock:
+            if self._closed:
+                return
             for t in self._topics.values():
                 if t.latched and t.last is not None and t.channel.id() == channel_id:
                     t.channel.log(t.last[1], log_time=t.last[0])
