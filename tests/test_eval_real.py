@@ -56,20 +56,27 @@ def test_vins_mono_mh01_rpe_equals_evo(vins) -> None:
     assert (r.matched, r.possible) == (771, 773)
 
 
-@pytest.mark.parametrize("mode", ["se3", "sim3", "origin"])
-def test_v102_estimate_matches_evo(euroc_dir: Path, mode: str) -> None:
-    from evo.core import metrics, sync
+@pytest.fixture(scope="module")
+def v102(euroc_dir: Path):
+    from evo.core import sync
     from evo.tools import file_interface
 
     gt_path = euroc_dir / "groundtruth/V1_02_medium.csv"
     est_path = euroc_dir / "eval_reference/V1_02_estimate/estimate_tum.txt"
-    r = evaluate(
-        load_groundtruth(gt_path).traj, load_estimates(est_path)[0].traj, EvalConfig(align=mode)
-    )
-    ref_e, est_e = sync.associate_trajectories(
+    ours = (load_groundtruth(gt_path).traj, load_estimates(est_path)[0].traj)
+    evo_pair = sync.associate_trajectories(
         file_interface.read_euroc_csv_trajectory(str(gt_path)),
         file_interface.read_tum_trajectory_file(str(est_path)),
     )
+    return ours, evo_pair
+
+
+@pytest.mark.parametrize("mode", ["se3", "sim3", "origin"])
+def test_v102_estimate_matches_evo(v102, mode: str) -> None:
+    from evo.core import metrics
+
+    (gt, est), (ref_e, est_e) = v102
+    r = evaluate(gt, est, EvalConfig(align=mode))
     est_e = copy.deepcopy(est_e)
     if mode == "origin":
         est_e.align_origin(ref_e)
