@@ -177,6 +177,14 @@ def m_png_truncated(m: Path) -> int:
     return _t(m)
 
 
+def m_png_bit_flip(m: Path) -> int:
+    p = _img(m)
+    data = bytearray(p.read_bytes())
+    data[len(data) // 2] ^= 0x10  # inside the image data: only the chunk CRC tells
+    p.write_bytes(bytes(data))
+    return _t(m)
+
+
 def m_png_16bit(m: Path) -> int:
     img = _orig(m)
     cv2.imwrite(str(_img(m)), img.astype(np.uint16) * 257)
@@ -368,6 +376,8 @@ CASES: dict[str, Case] = {
     "png zero bytes": Case(m_png_zero, WARNING, "empty file", "cam0/data", "skip:unreadable image"),
     "png truncated": Case(m_png_truncated, WARNING, "truncated PNG", "cam0/data",
                           "skip:unreadable image"),
+    "png bit flip": Case(m_png_bit_flip, WARNING, "CRC error in 'IDAT' chunk", "cam0/data",
+                         "skip:unreadable image", full=True),
     "png 16-bit": Case(m_png_16bit, WARNING, "16-bit", "cam0/data", "skip:converted (16-bit"),
     "png colour": Case(m_png_colour, WARNING, "RGB", "cam0/data", "skip:converted (colour"),
     "png wrong size": Case(m_png_wrong_size, ERROR, "376x240", "cam0/data",

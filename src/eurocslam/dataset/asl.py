@@ -13,6 +13,7 @@ orders of magnitude (seconds vs nanoseconds) are refused.
 
 from __future__ import annotations
 
+import zlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -215,13 +216,40 @@ class DecodedImage:
     converted: str | None = None
 
 
-def decode_image_bytes(data: bytes) -> DecodedImage:
+def png_problem(data: bytes, check_crc: bool = False) -> str | None:
+    """Walk a PNG's chunks: what is wrong with it, or None. Catches truncation and broken chunk
+    structure before libpng sees the bytes (libpng would print its own error on stderr); with
+    `check_crc` also every chunk's CRC (~0.4 ms per EuRoC image, 10% of a decode)."""
+    view = memoryview(data)
+    pos, n = len(PNG_SIGNATURE), len(data)
+    first = True
+    while pos + 12 <= n:
+        length = int.from_bytes(view[pos : pos + 4], "big")
+        ctype = bytes(view[pos + 4 : pos + 8])
+        end = pos + 12 + length
+        if end > n:
+            return f"truncated PNG ({ctype.decode('latin-1')!r} chunk cut short)"
+        if first and ctype != b"IHDR":
+            return "corrupt PNG (first chunk is not IHDR)"
+        first = False
+        crc = int.from_bytes(view[end - 4 : end], "big")
+        if check_crc and zlib.crc32(view[pos + 4 : end - 4]) != crc:
+            return f"corrupt PNG (CRC error in {ctype.decode('latin-1')!r} chunk)"
+        if ctype == b"IEND":
+            return None
+        pos = end
+    return "truncated PNG (no IEND chunk)"
+
+
+def decode_image_bytes(data: bytes, *, check_crc: bool = False) -> DecodedImage:
     """Decode image bytes to 8-bit mono. Empty and truncated PNGs are refused before decoding
     (libpng would print to stderr); 16-bit images keep their high byte, colour becomes grey."""
     if not data:
         return DecodedImage(None, "empty file")
-    if data.startswith(PNG_SIGNATURE) and b"IEND" not in data[-12:]:
-        return DecodedImage(None, "truncated PNG (no IEND chunk at the end)")
+    if data.startswith(PNG_SIGNATURE):
+        problem = png_problem(data, check_crc)
+        if problem is not None:
+            return DecodedImage(None, problem)
     img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
         return DecodedImage(None, "not a decodable image")
@@ -238,13 +266,13 @@ def decode_image_bytes(data: bytes) -> DecodedImage:
     return DecodedImage(np.ascontiguousarray(img), None, ", ".join(notes) or None)
 
 
-def decode_image(path: Path) -> DecodedImage:
+def decode_image(path: Path, *, check_crc: bool = False) -> DecodedImage:
     """Read and decode one image file (see `decode_image_bytes`)."""
     try:
         data = Path(path).read_bytes()
     except OSError as e:
         return DecodedImage(None, f"cannot read: {e.strerror or e}")
-    return decode_image_bytes(data)
+    return decode_image_bytes(data, check_crc=check_crc)
 
 
 def read_image(path: Path) -> U8 | None:

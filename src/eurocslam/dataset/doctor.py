@@ -762,7 +762,7 @@ class _Doctor:
         for name in picks:
             if self.progress is not None:
                 self.progress(1, cam)
-            dec = decode_image(folder / name)
+            dec = decode_image(folder / name, check_crc=True)
             self.decoded += 1
             if dec.image is None:
                 unreadable.append(f"{name} ({dec.problem})")
