@@ -303,3 +303,12 @@ def test_coverage_excludes_gaps() -> None:
     est = Trajectory(t, p, q)
     assert coverage(ref, est, 0, 10**9) == pytest.approx(0.5)
     assert coverage(ref, est, 0, 3 * 10**9) == pytest.approx(0.75)
+
+
+def test_rotation_angles_accurate_small_and_large() -> None:
+    from eurocslam.eval.metrics import rotation_angles_deg
+
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    for deg in (1e-7, 1e-3, 1.0, 90.0, 179.0, 179.9999):
+        R = so3_exp(axis * np.deg2rad(deg))[None]
+        assert rotation_angles_deg(R)[0] == pytest.approx(deg, rel=1e-6)

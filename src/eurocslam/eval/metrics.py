@@ -61,8 +61,13 @@ class Stats:
 
 def rotation_angles_deg(R: F64) -> F64:
     """Rotation angles (N,) in degrees of rotation matrices (N, 3, 3)."""
+    # atan2(sin, cos) stays accurate near 0 and pi, where arccos of the trace loses digits
     tr = np.trace(R, axis1=-2, axis2=-1)
-    return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
+    v = np.stack(
+        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]],
+        axis=-1,
+    )
+    return np.degrees(np.arctan2(0.5 * np.linalg.norm(v, axis=-1), 0.5 * (tr - 1.0)))
 
 
 def ate_errors(p_ref: F64, R_ref: F64, p_est: F64, R_est: F64) -> tuple[F64, F64]:
