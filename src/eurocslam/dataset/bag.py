@@ -411,6 +411,7 @@ class BagSequence:
                 "folder with metadata.yaml)"
             )
         self.kind = _bag_kind(self.path)
+        self.root = self.path  # what convert and run record as the source
         self.name = (
             self.path.name.removesuffix(self.path.suffix)
             if self.path.is_file()
