@@ -133,3 +133,22 @@ def test_no_command_prints_help(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as ei:
         main(["--version"])
     assert ei.value.code == 0
+
+
+def test_error_messages_are_folded_to_one_line(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Even an error whose text spans lines (e.g. a YAML parser's) prints as one stderr line."""
+    import types
+
+    import eurocslam.cli as cli
+    from eurocslam.errors import DatasetError
+
+    def run(args: object) -> int:
+        raise DatasetError("x/sensor.yaml: not valid YAML:\n  in line 3\n    bad: [")
+
+    fake = types.SimpleNamespace(NAME="fake", HELP="h", add_arguments=lambda p: None, run=run)
+    monkeypatch.setattr(cli, "_commands", lambda: [fake])
+    assert cli.main(["fake"]) == 2
+    err = capsys.readouterr().err
+    assert err == "eurocslam fake: error: x/sensor.yaml: not valid YAML: in line 3 bad: [\n"

@@ -59,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except EurocSlamError as e:
-        print(f"eurocslam {args.command}: error: {e}", file=sys.stderr)
+        one_line = " ".join(str(e).split()) or type(e).__name__
+        print(f"eurocslam {args.command}: error: {one_line}", file=sys.stderr)
         return e.exit_code
     except KeyboardInterrupt:
         print(f"eurocslam {args.command}: interrupted", file=sys.stderr)
