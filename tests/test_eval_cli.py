@@ -41,8 +41,37 @@ def _write_mcap(path: Path, topics: dict[str, Trajectory], tf_child: str | None 
             "tf2_msgs/msg/TFMessage",
             ts.generate_msgdef("tf2_msgs/msg/TFMessage", ros_version=2)[0],
         )
+        path_schema = w.register_msgdef(
+            "nav_msgs/msg/Path", ts.generate_msgdef("nav_msgs/msg/Path", ros_version=2)[0]
+        )
         for topic, tr in topics.items():
             q = wxyz_to_xyzw(tr.q_wxyz)
+            if topic == "/slam/path_final":
+                poses = []
+                for i in range(len(tr)):
+                    t = int(tr.t_ns[i])
+                    poses.append(
+                        {
+                            "header": {
+                                "stamp": {"sec": t // 10**9, "nanosec": t % 10**9},
+                                "frame_id": "world",
+                            },
+                            "pose": {
+                                "position": dict(zip("xyz", map(float, tr.p[i]), strict=True)),
+                                "orientation": dict(zip("xyzw", map(float, q[i]), strict=True)),
+                            },
+                        }
+                    )
+                end = int(tr.t_ns[-1])
+                msg = {
+                    "header": {
+                        "stamp": {"sec": end // 10**9, "nanosec": end % 10**9},
+                        "frame_id": "world",
+                    },
+                    "poses": poses,
+                }
+                w.write_message(topic, path_schema, msg, end, end)
+                continue
             for i in range(len(tr)):
                 t = int(tr.t_ns[i])
                 stamp = {"sec": t // 10**9, "nanosec": t % 10**9}
@@ -266,3 +295,33 @@ def test_eval_segments_from_tum_comments(pair, tmp_path: Path, capsys) -> None:
     assert [s["segment"] for s in res["segments"]] == [0, 1]
     assert res["ate_trans_m"]["rmse"] < 0.03
     assert 0.85 < res["coverage"] < 0.95
+
+
+def test_eval_run_folder_with_only_the_mcap(pair, tmp_path: Path) -> None:
+    gt_csv, _, gt, _ = pair
+    final = perturb(gt, random_similarity(5), step=10, noise_m=0.005, seed=3)
+    online = perturb(gt, random_similarity(5), step=10, noise_m=0.03, seed=4)
+    run = tmp_path / "run"
+    run.mkdir()
+    _write_mcap(
+        run / "run.mcap", {"/slam/pose": online, "/slam/path_final": final, "/groundtruth/pose": gt}
+    )
+    write_tum(tmp_path / "final.tum", final)
+    assert main(["eval", str(run), "-q", "--json", str(tmp_path / "m.json")]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                str(tmp_path / "final.tum"),
+                str(gt_csv),
+                "-q",
+                "--json",
+                str(tmp_path / "f.json"),
+            ]
+        )
+        == 0
+    )
+    res = json.loads((tmp_path / "m.json").read_text())["results"]
+    assert [r["label"] for r in res] == ["final (smoothed)", "online (causal)"]
+    f = json.loads((tmp_path / "f.json").read_text())["results"][0]
+    assert res[0]["ate_trans_m"]["rmse"] == pytest.approx(f["ate_trans_m"]["rmse"], abs=1e-9)

@@ -4,7 +4,8 @@ Estimate inputs:
 
 * a TUM or EuRoC CSV file (format detected from the content, `io.trajectory_io`);
 * a run output folder: `trajectory_final.tum` (smoothed, "final") and `trajectory_online.tum`
-  (causal, per frame, "online"); falls back to `run.mcap` `/slam/pose` when neither file exists;
+  (causal, per frame, "online"); falls back to `run.mcap` (`/slam/path_final`, `/slam/pose`)
+  when neither file exists;
 * an MCAP (detected from its magic bytes): a `geometry_msgs/PoseStamped`,
   `PoseWithCovarianceStamped`, `nav_msgs/Odometry`, `nav_msgs/Path` (last message) or
   `tf2_msgs/TFMessage` topic (`child_frame` picks the transform, as in `--child-frame`).
@@ -37,6 +38,16 @@ DEFAULT_GT_TOPIC = "/groundtruth/pose"
 RUN_FINAL = "trajectory_final.tum"
 RUN_ONLINE = "trajectory_online.tum"
 RUN_MCAP = "run.mcap"
+FINAL_TOPIC = "/slam/path_final"  # nav_msgs/Path written by `run` at the end
+
+
+def _mcap_label(topic: str) -> str:
+    """What an eurocslam run's topic holds; other topics are just 'estimate'."""
+    return {
+        DEFAULT_EST_TOPIC: "online (causal)",
+        FINAL_TOPIC: "final (smoothed)",
+    }.get(topic, "estimate")
+
 
 POSE_TYPES = {
     "geometry_msgs/msg/PoseStamped": "pose",
@@ -236,11 +247,16 @@ def load_estimates(
         if which in ("online", "both") and online.exists():
             t = read_trajectory(online, time_unit=time_unit, name=str(online))
             out.append(Loaded(t, "online (causal)", str(online), _notes(t)))
-        if not out and (path / RUN_MCAP).exists() and which != "final":
+        if not out and (path / RUN_MCAP).exists():
             mc = path / RUN_MCAP
-            tp = topic or DEFAULT_EST_TOPIC
-            t = read_mcap_trajectory(mc, tp, child_frame, f"{mc}:{tp}")
-            out.append(Loaded(t, "online (causal, from run.mcap)", f"{mc}:{tp}"))
+            if topic:
+                t = read_mcap_trajectory(mc, topic, child_frame, f"{mc}:{topic}")
+                return [Loaded(t, _mcap_label(topic), f"{mc}:{topic}")]
+            have = mcap_topics(mc)
+            for tp, kind in ((FINAL_TOPIC, "final"), (DEFAULT_EST_TOPIC, "online")):
+                if tp in have and which in (kind, "both"):
+                    t = read_mcap_trajectory(mc, tp, None, f"{mc}:{tp}")
+                    out.append(Loaded(t, _mcap_label(tp), f"{mc}:{tp}"))
         if not out:
             wanted = {"final": RUN_FINAL, "online": RUN_ONLINE}.get(
                 which, f"{RUN_FINAL} or {RUN_ONLINE}"
@@ -253,7 +269,7 @@ def load_estimates(
     if is_mcap(path):
         tp = topic or DEFAULT_EST_TOPIC
         t = read_mcap_trajectory(path, tp, child_frame, f"{path}:{tp}")
-        return [Loaded(t, "estimate", f"{path}:{tp}")]
+        return [Loaded(t, _mcap_label(tp), f"{path}:{tp}")]
     t = read_trajectory(path, time_unit=time_unit, name=str(path))
     return [Loaded(t, "estimate", str(path), _notes(t))]
 
