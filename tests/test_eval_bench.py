@@ -75,6 +75,7 @@ def test_bench_with_fake_run_command(tmp_path: Path, fake: str, capsys) -> None:
     assert rows["seq_b"]["ate_final_m"] == pytest.approx(sorted(ates)[1])  # median of 3
     assert rows["seq_b"]["ate_online_m"] > rows["seq_b"]["ate_final_m"]
     assert (out / "runs/seq_b/run_2/run.log").exists()
+    assert (out / "runs/seq_b/run_2/eval.md").read_text().startswith("## Trajectory evaluation")
     assert (out / "bench.md").read_text().startswith("## Benchmark")
 
 

@@ -16,7 +16,8 @@ Sequence list (YAML)::
       - {name: synth_a, synth: {duration_s: 20, seed: 3}}   # eurocslam.dataset.synth.SynthSpec
 
 Relative paths are relative to the YAML file. Synthetic sequences are generated once into
-`OUT/sequences/NAME` and reused when already there.
+`OUT/sequences/NAME` and reused when already there. Each run leaves its outputs, `run.log`,
+`eval.json` and `eval.md` in `OUT/runs/NAME/run_K`.
 
 Run command: a template list with `{seq}`, `{out}` and `{no_imu}` (expands to `--no-imu` or to
 nothing); the default is `[python, -m, eurocslam.cli, run, {seq}, -o, {out}, --no-progress,
@@ -44,7 +45,7 @@ import yaml
 from eurocslam.errors import ConfigError, EurocSlamError, EvalError
 from eurocslam.eval.evaluate import EvalConfig, EvalResult, evaluate
 from eurocslam.eval.loaders import RUN_FINAL, RUN_ONLINE, groundtruth_csv_of
-from eurocslam.eval.report import write_json, write_text
+from eurocslam.eval.report import markdown_report, to_json_dict, write_json, write_text
 from eurocslam.io.trajectory_io import read_trajectory
 
 # GUIDE section 4: published stereo-inertial ATE RMSE [m] after SE(3) alignment
@@ -292,6 +293,9 @@ def _evaluate_run(rec: RunRecord, seq: Path, cfg: EvalConfig) -> None:
     online = rec.out_dir / RUN_ONLINE
     if online.exists():
         rec.online = evaluate(gt, read_trajectory(online), cfg, "online (causal)")
+    results = [r for r in (rec.final, rec.online) if r is not None]
+    write_json(rec.out_dir / "eval.json", to_json_dict(results, {"groundtruth": str(gt_csv)}))
+    write_text(rec.out_dir / "eval.md", markdown_report(results))
 
 
 def _one_run(
