@@ -1,0 +1,340 @@
+"""Synthetic sequence assembly: spec -> motion + world + IMU -> rendered frames -> ASL folder."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from eurocslam.dataset.calib import StereoRig, default_rig, load_rig
+from eurocslam.dataset.synth import writer
+from eurocslam.dataset.synth.imu import (
+    ImuStream,
+    read_real_imu,
+    real_imu_stream,
+    simulate_imu,
+)
+from eurocslam.dataset.synth.render import CameraModel, cast_and_shade
+from eurocslam.dataset.synth.trajectory import (
+    BUILTIN_T0_NS,
+    Motion,
+    builtin_motion,
+    motion_from_groundtruth,
+    read_groundtruth_file,
+)
+from eurocslam.dataset.synth.world import Marker, World, build_world
+from eurocslam.errors import DatasetError
+from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
+
+DEFAULT_DURATION_S = 30.0
+TINY_DURATION_S = 2.0
+# sensor model constants (documented in the README)
+READ_NOISE_DN = 1.5  # read noise sigma [DN]
+SHOT_NOISE_GAIN = 0.05  # shot-noise variance per DN of signal
+EXPOSURE_SPREAD = 0.15  # log-gain amplitude of the slow exposure changes
+BLUR_EXPOSURE_S = 0.008  # exposure window for motion blur
+BLUR_SUBFRAMES = 4
+
+
+@dataclass(frozen=True)
+class SynthSpec:
+    """What to synthesise. Identical specs give byte-identical sequences.
+
+    Motion: the built-in flight (`trajectory=None`, `duration_s` seconds, default 30) or a given
+    ground truth (`trajectory`: EuRoC ASL CSV or TUM), cropped to [`start_s`, `end_s`] seconds
+    after its first pose (`duration_s`, when given, caps the length). `imu`: real IMU rows
+    (ASL imu0/data.csv) to ship instead of simulated ones. `calib`: a folder with
+    cam0/cam1/imu0 sensor.yaml (default: EuRoC's, shipped in the package).
+    """
+
+    duration_s: float | None = None
+    seed: int = 0
+    trajectory: Path | None = None
+    imu: Path | None = None
+    start_s: float | None = None
+    end_s: float | None = None
+    calib: Path | None = None
+    image_noise: bool = True
+    vignetting: bool = True
+    exposure: bool = True
+    motion_blur: bool = False
+    imu_noise: bool = True
+    imu_bias: bool = True
+    max_speed: float = 1.5
+    max_yaw_rate: float = 1.0
+    knot_dt_s: float = 0.1
+    marker: Marker | None = None
+
+    @classmethod
+    def tiny(cls, seed: int = 0, **kw: Any) -> SynthSpec:
+        """A ~2 s built-in sequence (40 stereo pairs): a few seconds to make, for tests."""
+        kw.setdefault("duration_s", TINY_DURATION_S)
+        return cls(seed=seed, **kw)
+
+    def ideal(self) -> SynthSpec:
+        """The same spec with every realism switch off (no noise, biases, vignetting, ...)."""
+        return replace(
+            self, image_noise=False, vignetting=False, exposure=False, motion_blur=False,
+            imu_noise=False, imu_bias=False,
+        )
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        for k in ("trajectory", "imu", "calib"):
+            if d[k] is not None:
+                d[k] = str(Path(d[k]).resolve())
+        return d
+
+
+@dataclass
+class Scene:
+    """Everything needed to render any frame of a spec (picklable-free; shared by fork)."""
+
+    spec: SynthSpec
+    rig: StereoRig
+    motion: Motion
+    world: World
+    models: tuple[CameraModel, CameraModel]
+    cam_t_ns: np.ndarray
+    imu: ImuStream
+    notes: list[str] = field(default_factory=list)
+
+    # ---- construction ---------------------------------------------------------------------
+    @classmethod
+    def build(cls, spec: SynthSpec) -> Scene:
+        rig = load_rig(Path(spec.calib)) if spec.calib is not None else default_rig()
+        cam_rate, imu_rate = rig.cam0.rate_hz, rig.imu.rate_hz
+        ratio = imu_rate / cam_rate
+        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+            raise DatasetError(
+                f"calibration: imu0 rate {imu_rate:g} Hz is not a whole multiple of the camera "
+                f"rate {cam_rate:g} Hz (the IMU must share the camera timestamps)"
+            )
+        ratio_i = int(round(ratio))
+        if spec.trajectory is None:
+            if spec.imu is not None:
+                raise DatasetError("--imu needs --trajectory (the real motion the IMU measured)")
+            dur = DEFAULT_DURATION_S if spec.duration_s is None else float(spec.duration_s)
+            motion = builtin_motion(
+                dur, spec.seed, max_speed=spec.max_speed, max_yaw_rate=spec.max_yaw_rate
+            )
+            floor_z: float | None = 0.0
+        else:
+            gt = read_groundtruth_file(Path(spec.trajectory))
+            end = spec.end_s
+            if spec.duration_s is not None:
+                start = spec.start_s or 0.0
+                end = start + spec.duration_s if end is None else min(end, start + spec.duration_s)
+            motion = motion_from_groundtruth(
+                gt, start_s=spec.start_s, end_s=end, knot_dt=spec.knot_dt_s
+            )
+            floor_z = None
+        t_lo = motion.t0_ns + int(round(motion.t_start_s * 1e9))
+        t_hi = motion.t0_ns + int(np.floor(motion.t_end_s * 1e9))
+        if spec.imu is not None:
+            t_imu, g, a = read_real_imu(Path(spec.imu), t_lo, t_hi)
+            imu = real_imu_stream(t_imu, g, a, motion.bias_source)
+        else:
+            period = int(round(1e9 / imu_rate))
+            n = (t_hi - t_lo) // period + 1
+            t_imu = t_lo + period * np.arange(n, dtype=np.int64)
+            imu = simulate_imu(
+                motion.spline, motion.t0_ns, t_imu, rig.imu, spec.seed,
+                noise=spec.imu_noise, bias=spec.imu_bias,
+            )
+        cam_t = imu.t_ns[::ratio_i].copy()
+        if cam_t.size < 2:
+            raise DatasetError("the sequence is too short: fewer than 2 camera frames")
+        path = motion.spline.positions((cam_t - motion.t0_ns) * 1e-9)
+        world = build_world(path, spec.seed, floor_z=floor_z, marker=spec.marker)
+        models = (CameraModel.build(rig.cam0), CameraModel.build(rig.cam1))
+        return cls(spec, rig, motion, world, models, cam_t, imu)
+
+    # ---- rendering ------------------------------------------------------------------------
+    def t_s(self, t_ns: int | np.ndarray) -> F64:
+        return (np.asarray(t_ns, dtype=np.int64) - self.motion.t0_ns).astype(np.float64) * 1e-9
+
+    def T_world_body(self, t_s: float) -> F64:
+        st = self.motion.spline.evaluate(np.array([t_s]))
+        return make_T(st.R[0], st.p[0])
+
+    def gain(self, t_s: float) -> float:
+        """Slow, smooth exposure changes (deterministic per seed)."""
+        if not self.spec.exposure:
+            return 1.0
+        rng = np.random.default_rng([self.spec.seed, 0xE4])
+        f = rng.uniform(0.03, 0.2, 3) * 2 * np.pi
+        ph = rng.uniform(0, 2 * np.pi, 3)
+        return float(np.exp(EXPOSURE_SPREAD * np.mean(np.sin(f * t_s + ph)) * 1.5))
+
+    def radiance(self, k: int, cam: int, want_depth: bool = False) -> tuple[np.ndarray, Any]:
+        """Scene radiance of frame k in camera `cam` (0/1), plus the render output for depth."""
+        t = float(self.t_s(self.cam_t_ns[k]))
+        T_body_cam = self.rig.cam0.T_body_cam if cam == 0 else self.rig.cam1.T_body_cam
+        model = self.models[cam]
+        out = cast_and_shade(self.world, model, self.T_world_body(t) @ T_body_cam,
+                             want_depth=want_depth)
+        rad = out.radiance
+        if self.spec.motion_blur:
+            acc = rad.astype(np.float64)
+            offs = (np.arange(BLUR_SUBFRAMES) + 0.5) / BLUR_SUBFRAMES - 0.5
+            for off in offs[offs != 0.0]:
+                o2 = cast_and_shade(
+                    self.world, model, self.T_world_body(t + off * BLUR_EXPOSURE_S) @ T_body_cam
+                )
+                acc += o2.radiance
+            rad = (acc / (1 + np.count_nonzero(offs != 0.0))).astype(np.float32)
+        return rad, out
+
+    def image(self, k: int, cam: int, want_depth: bool = False) -> tuple[np.ndarray, Any]:
+        """Frame k of camera `cam` as 8-bit mono, with the sensor effects of the spec."""
+        rad, out = self.radiance(k, cam, want_depth)
+        t = float(self.t_s(self.cam_t_ns[k]))
+        scale = self.gain(t)
+        if self.spec.vignetting:
+            rad = rad * (self.models[cam].vignette * np.float32(scale))
+        elif scale != 1.0:
+            rad = rad * np.float32(scale)
+        if self.spec.image_noise:
+            rng = np.random.default_rng([self.spec.seed, int(self.cam_t_ns[k]) % (1 << 62), cam])
+            sigma = np.sqrt(np.float32(READ_NOISE_DN**2) + np.float32(SHOT_NOISE_GAIN) * rad)
+            rad = rad + sigma * rng.standard_normal(rad.shape, dtype=np.float32)
+        img = np.clip(rad + np.float32(0.5), 0, 255).astype(np.uint8)
+        return img, out
+
+
+# ---- parallel frame writing -----------------------------------------------------------------
+_SCENE: Scene | None = None
+_STAGE: Path | None = None
+PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 1]
+
+
+def _render_frames(indices: list[int]) -> tuple[int, float]:
+    scene, stage = _SCENE, _STAGE
+    assert scene is not None and stage is not None
+    t0 = time.process_time()
+    for k in indices:
+        t_ns = int(scene.cam_t_ns[k])
+        for cam, name in ((0, "cam0"), (1, "cam1")):
+            img, _ = scene.image(k, cam)
+            path = writer.image_path(stage, name, t_ns)
+            if not cv2.imwrite(str(path), img, PNG_PARAMS):
+                raise OSError(f"{path}: cv2.imwrite failed")
+    return len(indices), time.process_time() - t0
+
+
+def default_workers() -> int:
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:
+        n = os.cpu_count() or 1
+    return max(1, n)
+
+
+def render_all(scene: Scene, stage: Path, workers: int, show_progress: bool | None) -> float:
+    """Render and write every frame; returns the CPU seconds spent rendering."""
+    from eurocslam.progress import bar
+
+    global _SCENE, _STAGE
+    _SCENE, _STAGE = scene, stage
+    n = scene.cam_t_ns.size
+    chunks = [list(range(i, min(i + 4, n))) for i in range(0, n, 4)]
+    cpu = 0.0
+    pb = bar(total=n, desc="synth: rendering", unit="pair", enabled=show_progress)
+    # one OpenCV thread per process; set in the parent *before* forking (changing OpenCV's
+    # thread pool inside a forked child deadlocks)
+    old_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        if workers <= 1 or n < 8:
+            for ch in chunks:
+                done, c = _render_frames(ch)
+                cpu += c
+                pb.update(done)
+        else:
+            ctx = mp.get_context("fork")
+            with ctx.Pool(workers) as pool:
+                for done, c in pool.imap_unordered(_render_frames, chunks):
+                    cpu += c
+                    pb.update(done)
+    except OSError as e:
+        from eurocslam.errors import OutputError
+
+        raise OutputError(f"{stage}: cannot write images: {e}") from None
+    finally:
+        cv2.setNumThreads(old_threads)
+        pb.close()
+        _SCENE = _STAGE = None
+    return cpu
+
+
+def synthesize(
+    spec: SynthSpec,
+    out_dir: Path | str,
+    progress: bool | None = None,
+    *,
+    workers: int | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write the sequence described by `spec` as an EuRoC ASL folder at `out_dir`; returns it.
+
+    `progress`: show a progress bar (None: only on a terminal). `workers`: processes that render
+    (default: all available cores; the output does not depend on it).
+    """
+    t_start = time.perf_counter()
+    out = Path(out_dir)
+    scene = Scene.build(spec)
+    stage = writer.prepare_folder(out, overwrite)
+    try:
+        nw = default_workers() if workers is None else max(1, int(workers))
+        t_render = time.perf_counter()
+        cpu = render_all(scene, stage, nw, progress)
+        render_wall = time.perf_counter() - t_render
+        imu = scene.imu
+        st = scene.motion.spline.evaluate(scene.t_s(imu.t_ns))
+        summary = _summary(scene, st, render_wall, cpu, nw)
+        writer.write_tables(
+            stage, scene.rig, scene.cam_t_ns, imu.t_ns, imu.gyro, imu.accel, st.p,
+            rot_to_quat_wxyz(st.R), st.v, imu.bg, imu.ba, summary,
+        )
+    except BaseException:
+        import shutil
+
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    return writer.finish(stage, out)
+
+
+def _summary(scene: Scene, st: Any, render_wall: float, cpu: float, workers: int) -> dict[str, Any]:
+    from eurocslam import __version__
+
+    speed = np.linalg.norm(st.v, axis=1)
+    rate = np.linalg.norm(st.w_body, axis=1)
+    n = int(scene.cam_t_ns.size)
+    return {
+        "generator": f"eurocslam {__version__} synth",
+        "spec": scene.spec.to_json(),
+        "motion": scene.motion.description,
+        "fit_rms_m": scene.motion.fit_rms_m,
+        "fit_rms_deg": scene.motion.fit_rms_deg,
+        "world": scene.world.describe(),
+        "frames": n,
+        "imu_samples": int(scene.imu.t_ns.size),
+        "imu": "real rows" if scene.imu.real else "simulated",
+        "t_first_ns": int(scene.cam_t_ns[0]),
+        "t_last_ns": int(scene.cam_t_ns[-1]),
+        "duration_s": float((scene.cam_t_ns[-1] - scene.cam_t_ns[0]) * 1e-9),
+        "path_length_m": float(np.sum(np.linalg.norm(np.diff(st.p, axis=0), axis=1))),
+        "max_speed_mps": float(speed.max()),
+        "max_rate_radps": float(rate.max()),
+        "render_wall_s": render_wall,
+        "render_cpu_ms_per_pair": 1000.0 * cpu / max(n, 1),
+        "workers": workers,
+        "builtin_t0_ns": BUILTIN_T0_NS if scene.spec.trajectory is None else None,
+    }
