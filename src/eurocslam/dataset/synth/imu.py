@@ -90,8 +90,11 @@ def read_real_imu(path: Path, t_from_ns: int, t_to_ns: int) -> tuple[np.ndarray,
     """Real IMU rows (ASL imu0/data.csv) with t_from <= t <= t_to: (t_ns, gyro, accel)."""
     path = Path(path)
     if path.is_dir():
-        for cand in (path / "mav0" / "imu0" / "data.csv", path / "imu0" / "data.csv",
-                     path / "data.csv"):
+        for cand in (
+            path / "mav0" / "imu0" / "data.csv",
+            path / "imu0" / "data.csv",
+            path / "data.csv",
+        ):
             if cand.is_file():
                 path = cand
                 break

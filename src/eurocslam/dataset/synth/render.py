@@ -88,7 +88,9 @@ class CameraModel:
         # the distortion is one-to-one if its Jacobian keeps its sign over (a margin around)
         # the image's normalised footprint
         x0, x1, y0, y1 = float(x.min()), float(x.max()), float(y.min()), float(y.max())
-        gx, gy = np.meshgrid(np.linspace(x0 * 1.1, x1 * 1.1, 80), np.linspace(y0 * 1.1, y1 * 1.1, 60))
+        gx, gy = np.meshgrid(
+            np.linspace(x0 * 1.1, x1 * 1.1, 80), np.linspace(y0 * 1.1, y1 * 1.1, 60)
+        )
         h = 1e-6
         au, av = distort(cam, gx, gy)
         bu, bv = distort(cam, gx + h, gy)
@@ -99,16 +101,22 @@ class CameraModel:
         rho /= rho.max()
         vig = 1.0 - vignette_strength * rho**2
         return cls(
-            calib=cam, rays=r.astype(F32), pix_ang=pix_ang.astype(F32), vignette=vig.astype(F32),
-            xn_bounds=(x0, x1, y0, y1), monotone=monotone,
+            calib=cam,
+            rays=r.astype(F32),
+            pix_ang=pix_ang.astype(F32),
+            vignette=vig.astype(F32),
+            xn_bounds=(x0, x1, y0, y1),
+            monotone=monotone,
         )
 
     def pixel_bbox(self, R_cw: F64, o_w: F64, lo: F64, hi: F64) -> tuple[int, int, int, int] | None:
         """Pixel rows/cols (r0, r1, c0, c1) that can see the box [lo, hi]; None if none can."""
         cam = self.calib
         corners = np.array(
-            [[lo[0] if i & 1 else hi[0], lo[1] if i & 2 else hi[1], lo[2] if i & 4 else hi[2]]
-             for i in range(8)]
+            [
+                [lo[0] if i & 1 else hi[0], lo[1] if i & 2 else hi[1], lo[2] if i & 4 else hi[2]]
+                for i in range(8)
+            ]
         )
         pc = (corners - o_w) @ R_cw.T
         z = pc[:, 2]
@@ -133,8 +141,12 @@ class CameraModel:
         if not self.monotone:
             return 0, H, 0, W
         s = np.linspace(0.0, 1.0, 24)
-        ex = np.concatenate([x0 + (x1 - x0) * s, np.full(24, x1), x1 - (x1 - x0) * s, np.full(24, x0)])
-        ey = np.concatenate([np.full(24, y0), y0 + (y1 - y0) * s, np.full(24, y1), y1 - (y1 - y0) * s])
+        ex = np.concatenate(
+            [x0 + (x1 - x0) * s, np.full(24, x1), x1 - (x1 - x0) * s, np.full(24, x0)]
+        )
+        ey = np.concatenate(
+            [np.full(24, y0), y0 + (y1 - y0) * s, np.full(24, y1), y1 - (y1 - y0) * s]
+        )
         pu, pv = distort(cam, ex, ey)
         c0, c1 = int(np.floor(pu.min())) - 2, int(np.ceil(pu.max())) + 3
         r0, r1 = int(np.floor(pv.min())) - 2, int(np.ceil(pv.max())) + 3
@@ -154,8 +166,9 @@ class RenderOutput:
 class _Hits:
     """Nearest hit so far per pixel: distance, level-0 atlas coordinates, texel footprint."""
 
-    def __init__(self, t: np.ndarray, X: np.ndarray, Y: np.ndarray, foot: np.ndarray,
-                 fid: np.ndarray | None) -> None:
+    def __init__(
+        self, t: np.ndarray, X: np.ndarray, Y: np.ndarray, foot: np.ndarray, fid: np.ndarray | None
+    ) -> None:
         self.t, self.X, self.Y, self.foot, self.fid = t, X, Y, foot, fid
 
 
@@ -194,7 +207,9 @@ def cast_and_shade(
     hits: _Hits | None = None
     for a in range(3):
         lo_f, hi_f = 2 * a, 2 * a + 1
-        ta = np.maximum(F32(world.room_hi[a] - o[a]) * inv[a], F32(world.room_lo[a] - o[a]) * inv[a])
+        ta = np.maximum(
+            F32(world.room_hi[a] - o[a]) * inv[a], F32(world.room_lo[a] - o[a]) * inv[a]
+        )
         pos = d[a] > 0
         X, Y, foot = _face_coords(world, lo_f, o, ta, d, pix_ang, a)
         dx = F32(world.off_x[hi_f] - world.off_x[lo_f])
@@ -280,7 +295,7 @@ def _remap_subset(atlas: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray
 
 def _sample_trilinear(world: World, X: np.ndarray, Y: np.ndarray, foot: np.ndarray) -> np.ndarray:
     """Trilinear mip-mapped lookup: level log2(footprint), blended between its two neighbours."""
-    H, W = X.shape
+    _H, _W = X.shape
     lvl = np.log2(np.maximum(foot, F32(1.0)))
     np.minimum(lvl, F32(MIP_LEVELS - 1 - 1e-3), out=lvl)
     l0 = lvl.astype(np.int8)

@@ -80,8 +80,13 @@ class SynthSpec:
     def ideal(self) -> SynthSpec:
         """The same spec with every realism switch off (no noise, biases, vignetting, ...)."""
         return replace(
-            self, image_noise=False, vignetting=False, exposure=False, motion_blur=False,
-            imu_noise=False, imu_bias=False,
+            self,
+            image_noise=False,
+            vignetting=False,
+            exposure=False,
+            motion_blur=False,
+            imu_noise=False,
+            imu_bias=False,
         )
 
     def to_json(self) -> dict[str, Any]:
@@ -116,7 +121,7 @@ class Scene:
                 f"calibration: imu0 rate {imu_rate:g} Hz is not a whole multiple of the camera "
                 f"rate {cam_rate:g} Hz (the IMU must share the camera timestamps)"
             )
-        ratio_i = int(round(ratio))
+        ratio_i = round(ratio)
         if spec.trajectory is None:
             if spec.imu is not None:
                 raise DatasetError("--imu needs --trajectory (the real motion the IMU measured)")
@@ -135,18 +140,23 @@ class Scene:
                 gt, start_s=spec.start_s, end_s=end, knot_dt=spec.knot_dt_s
             )
             floor_z = None
-        t_lo = motion.t0_ns + int(round(motion.t_start_s * 1e9))
+        t_lo = motion.t0_ns + round(motion.t_start_s * 1e9)
         t_hi = motion.t0_ns + int(np.floor(motion.t_end_s * 1e9))
         if spec.imu is not None:
             t_imu, g, a = read_real_imu(Path(spec.imu), t_lo, t_hi)
             imu = real_imu_stream(t_imu, g, a, motion.bias_source)
         else:
-            period = int(round(1e9 / imu_rate))
+            period = round(1e9 / imu_rate)
             n = (t_hi - t_lo) // period + 1
             t_imu = t_lo + period * np.arange(n, dtype=np.int64)
             imu = simulate_imu(
-                motion.spline, motion.t0_ns, t_imu, rig.imu, spec.seed,
-                noise=spec.imu_noise, bias=spec.imu_bias,
+                motion.spline,
+                motion.t0_ns,
+                t_imu,
+                rig.imu,
+                spec.seed,
+                noise=spec.imu_noise,
+                bias=spec.imu_bias,
             )
         cam_t = imu.t_ns[::ratio_i].copy()
         if cam_t.size < 2:
@@ -178,8 +188,9 @@ class Scene:
         t = float(self.t_s(self.cam_t_ns[k]))
         T_body_cam = self.rig.cam0.T_body_cam if cam == 0 else self.rig.cam1.T_body_cam
         model = self.models[cam]
-        out = cast_and_shade(self.world, model, self.T_world_body(t) @ T_body_cam,
-                             want_depth=want_depth)
+        out = cast_and_shade(
+            self.world, model, self.T_world_body(t) @ T_body_cam, want_depth=want_depth
+        )
         rad = out.radiance
         if self.spec.motion_blur:
             acc = rad.astype(np.float64)
@@ -287,7 +298,6 @@ def synthesize(
     `progress`: show a progress bar (None: only on a terminal). `workers`: processes that render
     (default: all available cores; the output does not depend on it).
     """
-    t_start = time.perf_counter()
     out = Path(out_dir)
     scene = Scene.build(spec)
     stage = writer.prepare_folder(out, overwrite)
@@ -300,8 +310,18 @@ def synthesize(
         st = scene.motion.spline.evaluate(scene.t_s(imu.t_ns))
         summary = _summary(scene, st, render_wall, cpu, nw)
         writer.write_tables(
-            stage, scene.rig, scene.cam_t_ns, imu.t_ns, imu.gyro, imu.accel, st.p,
-            rot_to_quat_wxyz(st.R), st.v, imu.bg, imu.ba, summary,
+            stage,
+            scene.rig,
+            scene.cam_t_ns,
+            imu.t_ns,
+            imu.gyro,
+            imu.accel,
+            st.p,
+            rot_to_quat_wxyz(st.R),
+            st.v,
+            imu.bg,
+            imu.ba,
+            summary,
         )
     except BaseException:
         import shutil

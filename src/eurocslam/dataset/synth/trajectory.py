@@ -59,15 +59,17 @@ def builtin_motion(
         raise DatasetError(f"duration {duration_s} s: the built-in motion needs at least 1 s")
     rng = np.random.default_rng([seed, 0x5EED])
     dt = 0.005
-    t = np.arange(int(round((duration_s + 1.0) / dt)) + 1) * dt  # 1 s margin for the fit
+    t = np.arange(round((duration_s + 1.0) / dt) + 1) * dt  # 1 s margin for the fit
     rest = float(np.clip(0.08 * duration_s, 0.3, 2.0))
     hover = float(rng.uniform(1.1, 1.6))
     if duration_s >= 8.0:
         # on the floor, then a take-off slow enough to keep |a| <= 3 m/s^2 (peak of the quintic
         # ramp: 5.77 dh / T^2)
         z_rest = 0.15  # body centre above the floor when standing
-        climb = max(float(np.clip(0.12 * duration_s, 0.6, 3.0)),
-                    float(np.sqrt(5.77 * (hover - z_rest) / 3.0)))
+        climb = max(
+            float(np.clip(0.12 * duration_s, 0.6, 3.0)),
+            float(np.sqrt(5.77 * (hover - z_rest) / 3.0)),
+        )
     else:
         # short sequences (unit tests) start hovering still, so they are all flight
         z_rest, climb = hover, 0.6
@@ -189,7 +191,9 @@ def motion_from_groundtruth(
     i0 = int(np.searchsorted(rel, a - 1e-9))
     t0_ns = int(t_ns[i0])
     ts = (t_ns[sel] - t0_ns).astype(np.float64) * 1e-9
-    spline = fit_spline(ts, gt.p[sel], gt.q_wxyz[sel], knot_dt=knot_dt, smooth_sigma_s=smooth_sigma_s)
+    spline = fit_spline(
+        ts, gt.p[sel], gt.q_wxyz[sel], knot_dt=knot_dt, smooth_sigma_s=smooth_sigma_s
+    )
     t_end = min(b - (t0_ns - t_first) * 1e-9, spline.t_end)
     # residuals against the input inside the crop
     m = (ts >= 0) & (ts <= t_end)

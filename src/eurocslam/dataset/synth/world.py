@@ -114,27 +114,49 @@ def make_texture(
             c, sn = np.cos(angles[i]) * s / 2, np.sin(angles[i]) * s / 2
             a = aspects[i]
             pts = np.array(
-                [[x + c - sn * a, y + sn + c * a], [x - c - sn * a, y - sn + c * a],
-                 [x - c + sn * a, y - sn - c * a], [x + c + sn * a, y + sn - c * a]],
+                [
+                    [x + c - sn * a, y + sn + c * a],
+                    [x - c - sn * a, y - sn + c * a],
+                    [x - c + sn * a, y - sn - c * a],
+                    [x + c + sn * a, y + sn - c * a],
+                ],
                 dtype=np.int32,
             )
             cv2.fillConvexPoly(canvas, pts, v)
         elif k <= 7:  # disc / ellipse
             cv2.ellipse(
-                canvas, (int(x), int(y)), (max(1, int(s / 2)), max(1, int(s * aspects[i] / 2))),
-                float(np.degrees(angles[i])), 0, 360, v, -1,
+                canvas,
+                (int(x), int(y)),
+                (max(1, int(s / 2)), max(1, int(s * aspects[i] / 2))),
+                float(np.degrees(angles[i])),
+                0,
+                360,
+                v,
+                -1,
             )
         elif k == 8 and s > 6:  # text-like marks
             txt = "".join(rng.choice(list(_GLYPHS), size=int(rng.integers(2, 7))))
             scale = s / 30.0
             cv2.putText(
-                canvas, txt, (int(x), int(y)), int(rng.integers(0, 8)), scale, v,
-                max(1, int(scale * 2)), cv2.LINE_AA,
+                canvas,
+                txt,
+                (int(x), int(y)),
+                int(rng.integers(0, 8)),
+                scale,
+                v,
+                max(1, int(scale * 2)),
+                cv2.LINE_AA,
             )
         else:  # line / strip
             c, sn = np.cos(angles[i]) * s, np.sin(angles[i]) * s
-            cv2.line(canvas, (int(x), int(y)), (int(x + c), int(y + sn)), v,
-                     max(1, int(s * aspects[i] / 6)), cv2.LINE_AA)
+            cv2.line(
+                canvas,
+                (int(x), int(y)),
+                (int(x + c), int(y + sn)),
+                v,
+                max(1, int(s * aspects[i] / 6)),
+                cv2.LINE_AA,
+            )
     img = canvas.astype(np.float32) * (0.7 + 0.5 * low)
     img += rng.normal(0.0, 3.0, (h, w)).astype(np.float32)  # grain
     img = cv2.GaussianBlur(img, (0, 0), 0.6)
@@ -190,7 +212,7 @@ def _place_obstacles(
             continue
         if any(
             np.all(lo[:2] < h2[:2] + 0.1) and np.all(hi[:2] > l2[:2] - 0.1)
-            for l2, h2 in zip(los, his)
+            for l2, h2 in zip(los, his, strict=False)
         ):
             continue
         los.append(lo)
@@ -231,14 +253,20 @@ def build_world(
 
     # faces: (axis, s-extent, t-extent, s-origin, t-origin, style)
     faces: list[tuple[int, float, float, float, float, str]] = []
-    for b_lo, b_hi, style in [(room_lo, room_hi, "room"), *zip(box_lo, box_hi, kinds)]:
+    for b_lo, b_hi, style in [
+        (room_lo, room_hi, "room"),
+        *zip(box_lo, box_hi, kinds, strict=False),
+    ]:
         for axis in range(3):
             sa, ta = ST_AXES[axis]
             for side in range(2):
                 fstyle = style
                 if style == "room":
-                    fstyle = "floor" if (axis == 2 and side == 0) else (
-                        "ceiling" if axis == 2 else "wall")
+                    fstyle = (
+                        "floor"
+                        if (axis == 2 and side == 0)
+                        else ("ceiling" if axis == 2 else "wall")
+                    )
                 if style == "marker":
                     disc_side = marker.side if marker is not None else 0
                     fstyle = "disc" if (axis == marker.axis and side == disc_side) else "plate"
@@ -255,8 +283,11 @@ def build_world(
     k_t = np.zeros(n)
     textures: list[np.ndarray] = []
     palette = {
-        "floor": (95.0, 55.0), "wall": (140.0, 60.0), "ceiling": (170.0, 45.0),
-        "box": (120.0, 70.0), "pillar": (130.0, 65.0),
+        "floor": (95.0, 55.0),
+        "wall": (140.0, 60.0),
+        "ceiling": (170.0, 45.0),
+        "box": (120.0, 70.0),
+        "pillar": (130.0, 65.0),
     }
     for i, (_axis, es, et, _os, _ot, style) in enumerate(faces):
         w = int(np.clip(np.ceil(es * texels_per_m / ALIGN), 1, MAX_TEX // ALIGN)) * ALIGN
@@ -285,13 +316,26 @@ def build_world(
             atlas[lv][y0 : y0 + padded.shape[0], x0 : x0 + padded.shape[1]] = padded
             if lv + 1 < MIP_LEVELS:
                 level = cv2.resize(
-                    level, (level.shape[1] // 2, level.shape[0] // 2),
+                    level,
+                    (level.shape[1] // 2, level.shape[0] // 2),
                     interpolation=cv2.INTER_AREA,
                 )
     return World(
-        room_lo=room_lo, room_hi=room_hi, box_lo=box_lo, box_hi=box_hi, kinds=list(kinds),
-        face_axis=face_axis, org_s=org_s, org_t=org_t, k_s=k_s, k_t=k_t, tex_w=tex_w,
-        tex_h=tex_h, off_x=off_x, off_y=off_y, atlas=atlas,
+        room_lo=room_lo,
+        room_hi=room_hi,
+        box_lo=box_lo,
+        box_hi=box_hi,
+        kinds=list(kinds),
+        face_axis=face_axis,
+        org_s=org_s,
+        org_t=org_t,
+        k_s=k_s,
+        k_t=k_t,
+        tex_w=tex_w,
+        tex_h=tex_h,
+        off_x=off_x,
+        off_y=off_y,
+        atlas=atlas,
     )
 
 

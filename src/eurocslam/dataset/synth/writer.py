@@ -57,7 +57,10 @@ BODY_YAML = "%YAML:1.0\ncomment: eurocslam synthetic sequence (EuRoC VI-sensor c
 
 def _rows(t_ns: np.ndarray, values: F64, fmt: str) -> str:
     """CSV rows 't,v1,...' with exact integer timestamps."""
-    body = [str(int(t)) + "," + ",".join(fmt % x for x in row) for t, row in zip(t_ns, values)]
+    body = [
+        str(int(t)) + "," + ",".join(fmt % x for x in row)
+        for t, row in zip(t_ns, values, strict=False)
+    ]
     return "\n".join(body) + "\n"
 
 
@@ -66,7 +69,9 @@ def prepare_folder(out: Path, overwrite: bool) -> Path:
     out = Path(out)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         if not overwrite:
-            raise OutputError(f"{out}: already exists and is not empty (pass --force to replace it)")
+            raise OutputError(
+                f"{out}: already exists and is not empty (pass --force to replace it)"
+            )
         if not (out / "synth.json").is_file():
             raise OutputError(
                 f"{out}: exists and is not a synthetic sequence written by eurocslam (no "
