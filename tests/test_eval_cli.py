@@ -32,7 +32,7 @@ def _write_mcap(path: Path, topics: dict[str, Trajectory], tf_child: str | None 
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
     with open(path, "wb") as f:
-        w = Writer(f)
+        w = Writer(f, chunk_size=8192)  # several chunks, so a cut file keeps some
         pose_schema = w.register_msgdef(
             "geometry_msgs/msg/PoseStamped",
             ts.generate_msgdef("geometry_msgs/msg/PoseStamped", ros_version=2)[0],
@@ -325,3 +325,17 @@ def test_eval_run_folder_with_only_the_mcap(pair, tmp_path: Path) -> None:
     assert [r["label"] for r in res] == ["final (smoothed)", "online (causal)"]
     f = json.loads((tmp_path / "f.json").read_text())["results"][0]
     assert res[0]["ate_trans_m"]["rmse"] == pytest.approx(f["ate_trans_m"]["rmse"], abs=1e-9)
+
+
+def test_eval_reads_an_unfinished_mcap(pair, tmp_path: Path, capsys) -> None:
+    gt_csv, _, gt, est = pair
+    mc = tmp_path / "run.mcap"
+    _write_mcap(mc, {"/slam/pose": est, "/groundtruth/pose": gt.take(slice(0, None, 4))})
+    data = mc.read_bytes()
+    part = tmp_path / "run.mcap.partial"
+    part.write_bytes(data[: len(data) * 2 // 3])
+    assert main(["eval", str(part), str(gt_csv), "-q", "--json", str(tmp_path / "p.json")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("no summary/index") == 1
+    res = json.loads((tmp_path / "p.json").read_text())["results"][0]
+    assert 0 < res["matched"] <= len(est)

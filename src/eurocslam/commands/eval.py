@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
             "folder, data.csv, TUM file or MCAP with /groundtruth/pose)"
         )
     gt = load_groundtruth(gt_path, args.gt_topic, args.gt_child_frame, args.gt_time_unit)
-    for note in [*gt.notes, *(n for e in estimates for n in e.notes)]:
+    for note in dict.fromkeys([*gt.notes, *(n for e in estimates for n in e.notes)]):
         print(f"eurocslam eval: note: {note}", file=sys.stderr)
 
     results = [evaluate(gt.traj, e.traj, cfg, e.label) for e in estimates]

@@ -114,21 +114,84 @@ def _tf_row(tf: Any) -> list[float]:
     return [p.x, p.y, p.z, q.w, q.x, q.y, q.z]
 
 
-def mcap_topics(path: Path) -> dict[str, str]:
-    """{topic: schema name} of an MCAP."""
+def _stream_records(path: Path):
+    """Records of an MCAP read front to back; stops quietly where a truncated file ends."""
+    from mcap.stream_reader import StreamReader
+
+    with open(path, "rb") as f:
+        it = StreamReader(f).records
+        while True:
+            try:
+                rec = next(it)
+            except StopIteration:
+                return
+            except Exception:  # truncated / unfinished file: keep what was read
+                return
+            yield rec
+
+
+def _scan(path: Path) -> tuple[dict[str, str], bool]:
+    """({topic: schema name}, indexed). Falls back to a front-to-back scan for MCAPs without a
+    summary (an interrupted run's `run.mcap.partial`)."""
     from mcap.reader import make_reader
+    from mcap.records import Channel, Schema
 
     try:
         with open(path, "rb") as f:
             summary = make_reader(f).get_summary()
-    except Exception as e:  # mcap raises several types for corrupt files
-        raise EvalError(f"{path}: cannot read MCAP: {e}") from None
-    if summary is None:
-        raise EvalError(f"{path}: MCAP has no summary (unfinished file?)")
-    return {
-        ch.topic: summary.schemas[ch.schema_id].name if ch.schema_id in summary.schemas else "?"
-        for ch in summary.channels.values()
-    }
+    except OSError as e:
+        raise EvalError(f"{path}: cannot read: {e}") from None
+    except Exception:  # mcap raises several types for corrupt or unfinished files
+        summary = None
+    if summary is not None:
+        return {
+            ch.topic: summary.schemas[ch.schema_id].name if ch.schema_id in summary.schemas else "?"
+            for ch in summary.channels.values()
+        }, True
+    schemas: dict[int, str] = {}
+    topics: dict[str, str] = {}
+    for rec in _stream_records(path):
+        if isinstance(rec, Schema):
+            schemas[rec.id] = rec.name
+        elif isinstance(rec, Channel):
+            topics[rec.topic] = schemas.get(rec.schema_id, "?")
+    if not topics:
+        raise EvalError(f"{path}: cannot read MCAP: no channels (empty or corrupt file)")
+    return topics, False
+
+
+def mcap_topics(path: Path) -> dict[str, str]:
+    """{topic: schema name} of an MCAP (complete or truncated)."""
+    return _scan(path)[0]
+
+
+def _decoded(path: Path, topic: str, indexed: bool):
+    """Decoded ROS 2 messages of one topic, in file order."""
+    from mcap_ros2.decoder import DecoderFactory
+
+    if indexed:
+        from mcap.reader import make_reader
+
+        with open(path, "rb") as f:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            for _, _, _, msg in reader.iter_decoded_messages(topics=[topic]):
+                yield msg
+        return
+    from mcap.records import Channel, Message, Schema
+
+    factory = DecoderFactory()
+    schemas: dict[int, Schema] = {}
+    decoders: dict[int, object] = {}
+    for rec in _stream_records(path):
+        if isinstance(rec, Schema):
+            schemas[rec.id] = rec
+        elif isinstance(rec, Channel) and rec.topic == topic:
+            decoders[rec.id] = factory.decoder_for(rec.message_encoding, schemas.get(rec.schema_id))
+        elif isinstance(rec, Message) and rec.channel_id in decoders:
+            dec = decoders[rec.channel_id]
+            if dec is None:
+                raise EvalError(f"{path}: topic '{topic}' is not CDR-encoded ROS 2 data")
+            yield dec(rec.data)  # type: ignore[operator]
 
 
 def read_mcap_trajectory(
@@ -136,13 +199,16 @@ def read_mcap_trajectory(
     topic: str,
     child_frame: str | None = None,
     name: str | None = None,
+    notes: list[str] | None = None,
 ) -> Trajectory:
-    """Poses of one topic of a ROS 2 MCAP, sorted by header stamp (repeats keep the last)."""
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
+    """Poses of one topic of a ROS 2 MCAP, sorted by header stamp (repeats keep the last).
 
+    An MCAP without summary (interrupted run) is read up to where it ends; a note says so.
+    """
     path = Path(path)
-    topics = mcap_topics(path)
+    topics, indexed = _scan(path)
+    if not indexed and notes is not None:
+        notes.append(f"{path}: no summary/index (unfinished file?); read up to where it ends")
     if topic not in topics:
         usable = [f"{t} ({s})" for t, s in sorted(topics.items()) if s in POSE_TYPES]
         raise EvalError(
@@ -159,12 +225,7 @@ def read_mcap_trajectory(
     rows: list[list[float]] = []
     children: dict[str, int] = {}
     try:
-        f = open(path, "rb")  # noqa: SIM115 - closed in the finally below
-    except OSError as e:
-        raise EvalError(f"{path}: cannot read: {e}") from None
-    try:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for _, _, _, msg in reader.iter_decoded_messages(topics=[topic]):
+        for msg in _decoded(path, topic, indexed):
             if kind == "pose":
                 t.append(_stamp(msg.header))
                 rows.append(_pose_row(msg.pose))
@@ -185,8 +246,6 @@ def read_mcap_trajectory(
         raise
     except Exception as e:
         raise EvalError(f"{path}: cannot decode topic '{topic}': {e}") from None
-    finally:
-        f.close()
     if kind in ("tf", "tfs"):
         if child_frame is None and len(children) > 1:
             raise EvalError(
@@ -268,8 +327,9 @@ def load_estimates(
         return out
     if is_mcap(path):
         tp = topic or DEFAULT_EST_TOPIC
-        t = read_mcap_trajectory(path, tp, child_frame, f"{path}:{tp}")
-        return [Loaded(t, _mcap_label(tp), f"{path}:{tp}")]
+        notes: list[str] = []
+        t = read_mcap_trajectory(path, tp, child_frame, f"{path}:{tp}", notes)
+        return [Loaded(t, _mcap_label(tp), f"{path}:{tp}", notes)]
     t = read_trajectory(path, time_unit=time_unit, name=str(path))
     return [Loaded(t, "estimate", str(path), _notes(t))]
 
@@ -309,8 +369,9 @@ def load_groundtruth(
         path = csv
     if is_mcap(path):
         tp = topic or DEFAULT_GT_TOPIC
-        t = read_mcap_trajectory(path, tp, child_frame, f"{path}:{tp}")
-        return Loaded(t, "ground truth", f"{path}:{tp}")
+        notes: list[str] = []
+        t = read_mcap_trajectory(path, tp, child_frame, f"{path}:{tp}", notes)
+        return Loaded(t, "ground truth", f"{path}:{tp}", notes)
     t = read_trajectory(path, time_unit=time_unit, name=str(path))
     return Loaded(t, "ground truth", str(path), _notes(t))
 
