@@ -1,0 +1,154 @@
+"""`eurocslam synth OUT`: write a synthetic or semi-real EuRoC ASL sequence."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+NAME = "synth"
+HELP = "write a synthetic or semi-real EuRoC sequence (rendered stereo, IMU, ground truth)"
+
+_SWITCHES = (
+    ("noise", "image_noise", "image sensor noise (read + shot noise)"),
+    ("vignetting", "vignetting", "lens vignetting"),
+    ("exposure", "exposure", "slow exposure (gain) changes"),
+    ("blur", "motion_blur", "motion blur over an 8 ms exposure (4x render cost)"),
+    ("imu-noise", "imu_noise", "IMU white noise and bias random walk from imu0/sensor.yaml"),
+    ("bias", "imu_bias", "non-zero initial IMU biases"),
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from eurocslam.dataset.synth.sequence import SynthSpec
+
+    d = SynthSpec()
+    p.add_argument("out", type=Path, metavar="OUT", help="output sequence folder (gets mav0/)")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="length in seconds (built-in motion: default 30; with --trajectory: caps the crop)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="world, motion and noise seed (default 0)")
+    p.add_argument(
+        "--trajectory",
+        type=Path,
+        default=None,
+        metavar="GT",
+        help="replicate this motion: EuRoC ASL ground truth CSV or TUM file",
+    )
+    p.add_argument(
+        "--imu",
+        type=Path,
+        default=None,
+        metavar="IMU",
+        help="ship these real IMU rows (ASL imu0/data.csv, or a sequence folder) instead of "
+        "simulated ones; needs --trajectory with the matching ground truth",
+    )
+    p.add_argument(
+        "--start",
+        type=float,
+        default=None,
+        metavar="S",
+        help="crop: start S seconds after the trajectory's first pose",
+    )
+    p.add_argument(
+        "--end",
+        type=float,
+        default=None,
+        metavar="S",
+        help="crop: end S seconds after the trajectory's first pose",
+    )
+    p.add_argument(
+        "--calib",
+        type=Path,
+        default=None,
+        metavar="FOLDER",
+        help="folder with cam0/cam1/imu0 sensor.yaml (default: EuRoC's, built in)",
+    )
+    for flag, field, text in _SWITCHES:
+        default = getattr(d, field)
+        p.add_argument(
+            f"--{flag}",
+            dest=field,
+            action=argparse.BooleanOptionalAction,
+            default=default,
+            help=f"{text} (default: {'on' if default else 'off'})",
+        )
+    p.add_argument(
+        "--ideal",
+        action="store_true",
+        help="turn every realism switch off (exact images and IMU, zero biases)",
+    )
+    p.add_argument("--tiny", action="store_true", help="a 2 s sequence (tests, quick looks)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        metavar="N",
+        help="rendering processes (default: all cores)",
+    )
+    p.add_argument(
+        "--force", action="store_true", help="replace OUT if it holds an earlier synthetic sequence"
+    )
+    p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+
+
+def spec_from_args(args: argparse.Namespace):  # -> SynthSpec
+    from eurocslam.dataset.synth.sequence import TINY_DURATION_S, SynthSpec
+
+    duration = args.duration
+    if args.tiny and duration is None:
+        duration = TINY_DURATION_S
+    spec = SynthSpec(
+        duration_s=duration,
+        seed=args.seed,
+        trajectory=args.trajectory,
+        imu=args.imu,
+        start_s=args.start,
+        end_s=args.end,
+        calib=args.calib,
+        **{field: getattr(args, field) for _, field, _ in _SWITCHES},
+    )
+    return spec.ideal() if args.ideal else spec
+
+
+def run(args: argparse.Namespace) -> int:
+    from eurocslam.dataset.synth.sequence import synthesize
+    from eurocslam.errors import DatasetError
+
+    if args.duration is not None and args.duration <= 0:
+        raise DatasetError(f"--duration {args.duration:g}: must be positive")
+    if args.workers is not None and args.workers < 1:
+        raise DatasetError(f"--workers {args.workers}: must be at least 1")
+    spec = spec_from_args(args)
+    out = synthesize(spec, args.out, workers=args.workers, overwrite=args.force)
+    summary = json.loads((out / "synth.json").read_text())
+    if args.json:
+        print(json.dumps(summary, indent=2, sort_keys=True))
+        return 0
+    s = summary
+    print(f"wrote {out}", file=sys.stdout)
+    print(
+        f"  motion   {s['motion']}  ({s['path_length_m']:.1f} m, up to "
+        f"{s['max_speed_mps']:.2f} m/s and {s['max_rate_radps']:.2f} rad/s)"
+    )
+    if s["fit_rms_m"] > 0:
+        print(
+            f"  fit      spline vs the given poses: {100 * s['fit_rms_m']:.2f} cm RMS, "
+            f"{s['fit_rms_deg']:.2f} deg RMS"
+        )
+    print(f"  world    {s['world']}")
+    print(
+        f"  frames   {s['frames']} stereo pairs, {s['imu_samples']} IMU samples ({s['imu']}), "
+        f"{s['duration_s']:.2f} s"
+    )
+    print(
+        f"  render   {s['render_wall_s']:.1f} s with {s['workers']} worker(s), "
+        f"{s['render_cpu_ms_per_pair']:.0f} ms CPU per stereo pair"
+    )
+    print(f"  next     eurocslam doctor {out}")
+    return 0
