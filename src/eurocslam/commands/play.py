@@ -109,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
             )
             while not sink.wait_for_client(1.0):
                 pass
+            sink.wait_subscriptions_settled()  # let every panel subscribe before the first message
         watch = None if args.keep_serving else _ViewerWatch(lambda: sink.n_clients)
         pb = bar(total=round(span_s, 1), desc="play", unit="s")
         shown = [0.0]

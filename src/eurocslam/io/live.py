@@ -327,6 +327,7 @@ class LiveSink:
         self._seek_ns: int | None = None
         self._subscribed: dict[int, set[int]] = {}  # client id -> channel ids
         self._sub_cond = threading.Condition()
+        self._last_sub_change = time.monotonic()
         self._last_time_broadcast = -(1 << 62)
         self._closed = False
         self._ctx = foxglove.Context()
@@ -376,6 +377,18 @@ class LiveSink:
                     return False
                 self._sub_cond.wait(0.1 if left is None else min(left, 0.1))
         return True
+
+    def wait_subscriptions_settled(self, quiet_s: float = 3.0, timeout: float = 30.0) -> None:
+        """Wait until no viewer has (un)subscribed for `quiet_s` (or `timeout` passed): a viewer
+        subscribes panel by panel, and a 3D panel can take seconds longer than the others."""
+        deadline = time.monotonic() + timeout
+        with self._sub_cond:
+            while True:
+                now = time.monotonic()
+                quiet_until = self._last_sub_change + quiet_s
+                if now >= quiet_until or now >= deadline:
+                    return
+                self._sub_cond.wait(min(quiet_until, deadline) - now)
 
     def wait_all_disconnected(self, timeout: float | None = None) -> bool:
         return self._relay.wait_clients(lambda n: n == 0, timeout)
@@ -453,18 +466,25 @@ class LiveSink:
                 )
             if t.latched:
                 t.last = (t_ns, msg)
+            # the viewer's clock first (<= 100 Hz): a viewer with the `time` capability stamps
+            # what it receives with the last server time it got (0 before the first one)
+            if abs(t_ns - self._last_time_broadcast) >= 10_000_000:
+                self._broadcast_time(t_ns)
             t.channel.log(msg, log_time=t_ns)
         self.stats.messages += 1
         self.stats.bytes += len(msg)
         self.stats.per_topic[topic] = self.stats.per_topic.get(topic, 0) + 1
-        if abs(t_ns - self._last_time_broadcast) >= 10_000_000:  # the viewer's clock, <= 100 Hz
-            self._server.broadcast_time(t_ns)
-            self._last_time_broadcast = t_ns
 
-    def replay_latched(self) -> None:
-        """Send every latched topic's stored message again (after a seek, a loop or a new
-        subscription)."""
+    def _broadcast_time(self, t_ns: int) -> None:
+        self._server.broadcast_time(int(t_ns))
+        self._last_time_broadcast = int(t_ns)
+
+    def replay_latched(self, now_ns: int | None = None) -> None:
+        """Send every latched topic's stored message again (after a seek or a loop: `now_ns` is
+        the new playback time, sent first as the viewer's clock)."""
         with self._lock:
+            if now_ns is not None:
+                self._broadcast_time(now_ns)
             for t in self._topics.values():
                 if t.latched and t.last is not None:
                     t.channel.log(t.last[1], log_time=t.last[0])
@@ -472,6 +492,7 @@ class LiveSink:
     def _on_subscribe(self, client_id: int, channel_id: int) -> None:
         with self._sub_cond:
             self._subscribed.setdefault(client_id, set()).add(channel_id)
+            self._last_sub_change = time.monotonic()
             self._sub_cond.notify_all()
         self._resend_latched(channel_id)
         # foxglove-sdk may call on_subscribe before the client's sink is registered for the
@@ -488,6 +509,8 @@ class LiveSink:
                 return
             for t in self._topics.values():
                 if t.latched and t.last is not None and t.channel.id() == channel_id:
+                    if self._last_time_broadcast < 0:  # nothing played yet: start the clock
+                        self._broadcast_time(t.last[0])
                     t.channel.log(t.last[1], log_time=t.last[0])
 
     def _on_unsubscribe(self, client_id: int, channel_id: int) -> None:
@@ -497,6 +520,7 @@ class LiveSink:
                 subs.discard(channel_id)
                 if not subs:
                     del self._subscribed[client_id]
+            self._last_sub_change = time.monotonic()
             self._sub_cond.notify_all()
 
     # ---- playback control
@@ -704,14 +728,14 @@ def play_mcap(
             res.seeks += 1
             start = max(info.start_ns, min(seek, info.end_ns))
             sink.clock.reanchor()
-            sink.replay_latched()
+            sink.replay_latched(start)
             continue
         if loop and not sink.clock.stopped:
             res.loops += 1
             start = None
             sink.clear_session()
             sink.clock.reanchor()
-            sink.replay_latched()
+            sink.replay_latched(info.start_ns)
             continue
         res.finished = True
         sink.broadcast_ended()
