@@ -164,30 +164,31 @@ class RenderOutput:
 
 
 class _Hits:
-    """Nearest hit so far per pixel: distance, level-0 atlas coordinates, texel footprint."""
+    """Nearest hit so far per pixel: distance, atlas coordinates (level-0 texel centres),
+    incidence-stretched distance (for the mip level), face id (only when asked)."""
 
     def __init__(
-        self, t: np.ndarray, X: np.ndarray, Y: np.ndarray, foot: np.ndarray, fid: np.ndarray | None
+        self,
+        t: np.ndarray,
+        X: np.ndarray,
+        Y: np.ndarray,
+        foot: np.ndarray,
+        fid: np.ndarray | None,
     ) -> None:
         self.t, self.X, self.Y, self.foot, self.fid = t, X, Y, foot, fid
 
 
-def _face_coords(
-    world: World, f: int, o: F64, t: np.ndarray, d: np.ndarray, pix_ang: np.ndarray, axis: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Atlas coordinates (level 0) and texel footprint of hits at distance t on face f."""
+def _face_xy(
+    world: World, f: int, o: F64, t: np.ndarray, dk: np.ndarray, axis: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Atlas coordinates of hits at distance t on face f: (o + t d - org) k + off - 0.5."""
     sa, ta = ST_AXES[axis]
-    ks, kt = float(world.k_s[f]), float(world.k_t[f])
-    # X = (o_s + t d_s - org_s) k_s + off_x
-    X = t * (d[sa] * F32(ks))
-    X += F32((o[sa] - world.org_s[f]) * ks + world.off_x[f])
-    Y = t * (d[ta] * F32(kt))
-    Y += F32((o[ta] - world.org_t[f]) * kt + world.off_y[f])
-    # footprint (texels per pixel), geometric mean of the along/across incidence stretch
-    foot = t * pix_ang
-    foot *= F32(max(ks, kt))
-    foot /= np.sqrt(np.maximum(np.abs(d[axis]), F32(0.02)))
-    return X, Y, foot
+    k = world.texels_per_m
+    X = t * dk[sa]
+    X += F32((o[sa] - world.org_s[f]) * k + world.off_x[f] - 0.5)
+    Y = t * dk[ta]
+    Y += F32((o[ta] - world.org_t[f]) * k + world.off_y[f] - 0.5)
+    return X, Y
 
 
 def cast_and_shade(
@@ -198,10 +199,17 @@ def cast_and_shade(
     o = np.asarray(T_world_cam[:3, 3], dtype=np.float64)
     H, W = model.calib.height, model.calib.width
     d = (R_wc.astype(F32) @ model.rays.reshape(3, -1)).reshape(3, H, W)
+    dk = d * F32(world.texels_per_m)
     with np.errstate(divide="ignore"):
+        # +-inf where a ray is parallel to an axis: the slab tests below stay correct (the
+        # camera is never exactly on a face plane)
         inv = F32(1.0) / d
-    np.nan_to_num(inv, copy=False, posinf=1e30, neginf=-1e30)
-    pix_ang = model.pix_ang
+    # incidence stretch per axis: 1 / sqrt(cos(angle to the face normal)), the geometric mean of
+    # the along/across footprint stretch (mip selection)
+    g = np.abs(d)
+    np.maximum(g, F32(0.02), out=g)
+    np.sqrt(g, out=g)
+    np.divide(F32(1.0), g, out=g)
     # room, seen from inside: per axis the wall the ray heads for; faces differ per side only
     # by their atlas offset, so one pass per axis serves both sides
     hits: _Hits | None = None
@@ -211,13 +219,14 @@ def cast_and_shade(
             F32(world.room_hi[a] - o[a]) * inv[a], F32(world.room_lo[a] - o[a]) * inv[a]
         )
         pos = d[a] > 0
-        X, Y, foot = _face_coords(world, lo_f, o, ta, d, pix_ang, a)
+        X, Y = _face_xy(world, lo_f, o, ta, dk, a)
         dx = F32(world.off_x[hi_f] - world.off_x[lo_f])
         dy = F32(world.off_y[hi_f] - world.off_y[lo_f])
         if dx:
             X += pos * dx
         if dy:
             Y += pos * dy
+        foot = ta * g[a]
         fid = (lo_f + pos).astype(np.int32) if want_depth else None
         if hits is None:
             hits = _Hits(ta, X, Y, foot, fid)
@@ -238,7 +247,6 @@ def cast_and_shade(
         if bb is None:
             continue
         r0, r1, c0, c1 = bb
-        dd = d[:, r0:r1, c0:c1]
         ii = inv[:, r0:r1, c0:c1]
         tn = tf = ax = None
         for a in range(3):
@@ -257,7 +265,8 @@ def cast_and_shade(
         hit = (tn <= tf) & (tn > 0) & (tn < tsub)
         if not hit.any():
             continue
-        pa = pix_ang[r0:r1, c0:c1]
+        dd = d[:, r0:r1, c0:c1]
+        dks = dk[:, r0:r1, c0:c1]
         for a in range(3):
             m = hit & (ax == a)
             if not m.any():
@@ -265,17 +274,18 @@ def cast_and_shade(
             # entering through the lower face when moving along +axis
             neg = dd[a] < 0
             lo_f = 6 + 6 * b + 2 * a
-            X, Y, foot = _face_coords(world, lo_f, o, tn, dd, pa, a)
-            dx = F32(world.off_x[lo_f + 1] - world.off_x[lo_f])
-            dy = F32(world.off_y[lo_f + 1] - world.off_y[lo_f])
-            X += neg * dx
-            Y += neg * dy
+            X, Y = _face_xy(world, lo_f, o, tn, dks, a)
+            X += neg * F32(world.off_x[lo_f + 1] - world.off_x[lo_f])
+            Y += neg * F32(world.off_y[lo_f + 1] - world.off_y[lo_f])
             np.copyto(hits.X[r0:r1, c0:c1], X, where=m)
             np.copyto(hits.Y[r0:r1, c0:c1], Y, where=m)
-            np.copyto(hits.foot[r0:r1, c0:c1], foot, where=m)
+            np.copyto(hits.foot[r0:r1, c0:c1], tn * g[a, r0:r1, c0:c1], where=m)
             if hits.fid is not None:
                 np.copyto(hits.fid[r0:r1, c0:c1], (lo_f + neg).astype(np.int32), where=m)
         np.copyto(tsub, tn, where=hit)
+    # footprint in texels per pixel = distance * pixel angle * texel density * stretch
+    hits.foot *= model.pix_ang
+    hits.foot *= F32(world.texels_per_m)
     out = _sample_trilinear(world, hits.X, hits.Y, hits.foot)
     depth = (hits.t * model.rays[2]) if want_depth else None
     return RenderOutput(out, depth, hits.fid)
@@ -294,29 +304,32 @@ def _remap_subset(atlas: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray
 
 
 def _sample_trilinear(world: World, X: np.ndarray, Y: np.ndarray, foot: np.ndarray) -> np.ndarray:
-    """Trilinear mip-mapped lookup: level log2(footprint), blended between its two neighbours."""
-    _H, _W = X.shape
-    lvl = np.log2(np.maximum(foot, F32(1.0)))
-    np.minimum(lvl, F32(MIP_LEVELS - 1 - 1e-3), out=lvl)
-    l0 = lvl.astype(np.int8)
-    # most pixels sit at level 0 with no blending: one full-frame remap for them
-    out = cv2.remap(world.atlas[0], X - F32(0.5), Y - F32(0.5), cv2.INTER_LINEAR).astype(F32)
-    mag = (l0 == 0) & (lvl == 0)
-    if mag.all():
+    """Trilinear mip-mapped lookup at level log2(footprint), blended between its two
+    neighbours. X, Y are level-0 atlas coordinates of texel centres (remap convention)."""
+    # most pixels are magnified (footprint <= 1 texel): one full-frame bilinear remap at level
+    # 0 serves them; the others are redone per level
+    out = cv2.remap(world.atlas[0], X, Y, cv2.INTER_LINEAR).astype(F32)
+    ff = foot.reshape(-1)
+    rest = np.flatnonzero(ff > 1.0)
+    if rest.size == 0:
         return out
     flat_out = out.reshape(-1)
-    Xf, Yf, lf, l0f = X.reshape(-1), Y.reshape(-1), lvl.reshape(-1), l0.reshape(-1)
-    rest = np.flatnonzero(~mag.reshape(-1))
-    xr, yr, lr, l0r = Xf[rest], Yf[rest], lf[rest], l0f[rest]
+    lr = np.log2(ff[rest])
+    np.minimum(lr, F32(MIP_LEVELS - 1 - 1e-3), out=lr)
+    l0r = lr.astype(np.int8)
+    xr, yr = X.reshape(-1)[rest], Y.reshape(-1)[rest]
     for lv in range(MIP_LEVELS - 1):
         sel = np.flatnonzero(l0r == lv)
         if sel.size == 0:
             continue
         xs, ys = xr[sel], yr[sel]
         fr = lr[sel] - F32(lv)
+        # level-l texel centres: (X + 0.5) / 2^l - 0.5
         s0 = F32(1.0 / (1 << lv))
-        s1 = F32(0.5) * s0
-        a = _remap_subset(world.atlas[lv], xs * s0 - F32(0.5), ys * s0 - F32(0.5)).astype(F32)
-        b = _remap_subset(world.atlas[lv + 1], xs * s1 - F32(0.5), ys * s1 - F32(0.5)).astype(F32)
-        flat_out[rest[sel]] = a + fr * (b - a)
+        c0 = F32(0.5 / (1 << lv) - 0.5)
+        s1, c1 = F32(0.5) * s0, F32(0.25 / (1 << lv) - 0.5)
+        a = _remap_subset(world.atlas[lv], xs * s0 + c0, ys * s0 + c0).astype(F32)
+        b = _remap_subset(world.atlas[lv + 1], xs * s1 + c1, ys * s1 + c1).astype(F32)
+        a += fr * (b - a)
+        flat_out[rest[sel]] = a
     return out

@@ -59,6 +59,7 @@ class World:
     off_x: np.ndarray  # level-0 atlas offsets (multiples of ALIGN)
     off_y: np.ndarray
     atlas: list[np.ndarray]  # uint8 atlas per mip level
+    texels_per_m: float = TEXELS_PER_M  # texel density of every face (texels per metre)
 
     @property
     def n_faces(self) -> int:
@@ -289,11 +290,16 @@ def build_world(
         "box": (120.0, 70.0),
         "pillar": (130.0, 65.0),
     }
+    # one texel density for the whole world (the renderer relies on it): 5 mm, coarser only when
+    # the largest face would exceed MAX_TEX texels
+    largest = max(max(f[1], f[2]) for f in faces)
+    k = min(texels_per_m, (MAX_TEX - ALIGN) / largest)
     for i, (_axis, es, et, _os, _ot, style) in enumerate(faces):
-        w = int(np.clip(np.ceil(es * texels_per_m / ALIGN), 1, MAX_TEX // ALIGN)) * ALIGN
-        h = int(np.clip(np.ceil(et * texels_per_m / ALIGN), 1, MAX_TEX // ALIGN)) * ALIGN
+        # textures cover the face (rounded up to whole ALIGN blocks), never stretched
+        w = int(np.ceil(es * k / ALIGN)) * ALIGN
+        h = int(np.ceil(et * k / ALIGN)) * ALIGN
         tex_w[i], tex_h[i] = w, h
-        k_s[i], k_t[i] = w / es, h / et
+        k_s[i], k_t[i] = k, k
         if style == "disc" and marker is not None:
             textures.append(make_marker_texture(w, h, marker.disc_radius * k_s[i]))
         elif style == "plate":
