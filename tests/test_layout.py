@@ -107,6 +107,9 @@ def referenced(layout: dict[str, Any]) -> tuple[dict[str, set[str]], set[str]]:
             for key in cfg.get("transforms", {}):
                 assert key.startswith("frame:"), key
                 frames.add(key.removeprefix("frame:"))
+            for layer in cfg.get("layers", {}).values():
+                if layer.get("frameId"):
+                    frames.add(layer["frameId"])
             for t in cfg["topics"]:
                 add(t)
         elif kind == "Image":
@@ -161,7 +164,9 @@ def test_layout_shows_what_the_issue_asks_for() -> None:
     main = _load(LAYOUT)
     topics, frames = referenced(main)
     three_d = main["configById"]["3D!map"]
-    assert three_d["followTf"] == "world"
+    # the scene is drawn in `world` (the root of run's tf tree: world -> body, world -> gt_world);
+    # the camera follows the drone's position and keeps the world's orientation
+    assert (three_d["followTf"], three_d["followMode"]) == ("body", "follow-position")
     shown = {t for t, s in three_d["topics"].items() if s.get("visible")}
     # estimated path, ground-truth path, landmarks, both drones, camera frustums
     assert {
@@ -193,7 +198,7 @@ def test_layout_shows_what_the_issue_asks_for() -> None:
         "/slam/position_error",
         "/slam/state",
     } <= plotted
-    assert "world" in frames
+    assert {"world", "body"} <= frames
     assert set(topics) <= set(RUN_TOPICS)
 
 
