@@ -225,7 +225,10 @@ _SCENE: Scene | None = None
 _STAGE: Path | None = None
 # Huffman-only deflate: faster than level 1 and smaller on noisy images
 PNG_PARAMS = [
-    cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
+    cv2.IMWRITE_PNG_COMPRESSION,
+    1,
+    cv2.IMWRITE_PNG_STRATEGY,
+    cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
 ]
 
 
@@ -302,9 +305,9 @@ def synthesize(
     (default: all available cores; the output does not depend on it).
     """
     out = Path(out_dir)
-    scene = Scene.build(spec)
     stage = writer.prepare_folder(out, overwrite)
     try:
+        scene = Scene.build(spec)
         nw = default_workers() if workers is None else max(1, int(workers))
         t_render = time.perf_counter()
         cpu = render_all(scene, stage, nw, progress)

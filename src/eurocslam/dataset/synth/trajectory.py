@@ -54,9 +54,9 @@ def _smoothstep(x: F64) -> F64:
 def builtin_motion(
     duration_s: float, seed: int, *, max_speed: float = 1.5, max_yaw_rate: float = 1.0
 ) -> Motion:
-    """The built-in drone flight of `duration_s` seconds (>= 1)."""
-    if duration_s < 1.0:
-        raise DatasetError(f"duration {duration_s} s: the built-in motion needs at least 1 s")
+    """The built-in drone flight of `duration_s` seconds (>= 0.2)."""
+    if not duration_s >= 0.2:
+        raise DatasetError(f"duration {duration_s:g} s: the built-in motion needs at least 0.2 s")
     rng = np.random.default_rng([seed, 0x5EED])
     dt = 0.005
     t = np.arange(round((duration_s + 1.0) / dt) + 1) * dt  # 1 s margin for the fit
@@ -152,7 +152,7 @@ def read_groundtruth_file(path: Path) -> GroundTruthInput:
     if first.count(",") == 16:
         tab = read_numeric_csv(path, 17)
         if tab.t_ns.shape == traj.t_ns.shape and np.array_equal(tab.t_ns, traj.t_ns):
-            bg, ba = tab.values[:, 9:12].copy(), tab.values[:, 12:15].copy()
+            bg, ba = tab.values[:, 10:13].copy(), tab.values[:, 13:16].copy()
     return GroundTruthInput(path, traj.t_ns, traj.p, traj.q_wxyz, bg, ba)
 
 

@@ -164,12 +164,18 @@ def make_texture(
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
-def make_marker_texture(w: int, h: int, radius_texels: float) -> np.ndarray:
-    img = np.full((h, w), 20, np.uint8)
+def make_marker_texture(
+    w: int, h: int, center: tuple[float, float], radius_texels: float
+) -> np.ndarray:
+    """Dark texture with a white disc at `center` (continuous texel coordinates: texel j covers
+    [j, j + 1)), drawn 8x supersampled."""
     big = np.zeros((h * 8, w * 8), np.uint8)
-    cv2.circle(big, (w * 4, h * 4), int(radius_texels * 8), 255, -1, cv2.LINE_AA)
-    img = np.maximum(img, cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA))
-    return img
+    # big-pixel index coordinates of the centre, with 4 fractional bits
+    c = (round((center[0] * 8 - 0.5) * 16), round((center[1] * 8 - 0.5) * 16))
+    cv2.circle(big, c, round(radius_texels * 8 * 16), 255, -1, cv2.LINE_AA, shift=4)
+    return np.maximum(
+        np.full((h, w), 20, np.uint8), cv2.resize(big, (w, h), interpolation=cv2.INTER_AREA)
+    )
 
 
 # ---- layout ---------------------------------------------------------------------------------
@@ -301,7 +307,9 @@ def build_world(
         tex_w[i], tex_h[i] = w, h
         k_s[i], k_t[i] = k, k
         if style == "disc" and marker is not None:
-            textures.append(make_marker_texture(w, h, marker.disc_radius * k_s[i]))
+            textures.append(
+                make_marker_texture(w, h, (es * k / 2, et * k / 2), marker.disc_radius * k)
+            )
         elif style == "plate":
             textures.append(np.full((h, w), 20, np.uint8))
         else:
