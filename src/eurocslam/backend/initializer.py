@@ -99,12 +99,16 @@ def static_init(imu: ImuData, t_ns: int, cfg: InitConfig, gravity: float = 9.81)
     a_mean = np.mean(w.accel, axis=0)
     bg = np.mean(w.gyro, axis=0)
     R_world_body = gravity_aligned_rotation(a_mean)
+    # the accel bias along gravity is observable while still (|a| - g); the horizontal part is
+    # indistinguishable from tilt and is absorbed by the attitude
+    a_norm = float(np.linalg.norm(a_mean))
+    ba = (a_norm - gravity) * a_mean / a_norm
     return InitialState(
         t_ns=int(t_ns),
         T_world_body=make_T(R_world_body, np.zeros(3)),
         v_world=np.zeros(3),
         bg=bg,
-        ba=np.zeros(3),
+        ba=ba,
         mode="static",
     )
 

@@ -1,0 +1,172 @@
+"""Pipeline end to end on images: real V1_01 micro (still), a synthetic flight, injected faults
+(black frames, a missing camera, an IMU dropout) and the visual-only mode."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eurocslam.config import RunConfig
+from eurocslam.dataset import open_sequence
+from eurocslam.dataset.calib import StereoRig
+from eurocslam.dataset.types import GroundTruth, ImuData, PositionData, SkipReport, StereoFrame
+from eurocslam.eval.evaluate import evaluate
+from eurocslam.io.trajectory_io import Trajectory
+from eurocslam.pipeline import PipelineState, RunResult, SlamPipeline
+
+SYNTH_S = 4.0
+
+
+@pytest.fixture(scope="module")
+def synth_seq(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from eurocslam.dataset.synth import SynthSpec, synthesize
+
+    return synthesize(SynthSpec(duration_s=SYNTH_S, seed=4), tmp_path_factory.mktemp("s") / "seq")
+
+
+@dataclass
+class FaultySource:
+    """Wraps a sequence and injects faults into what the pipeline reads."""
+
+    base: object
+    black: set[int] = field(default_factory=set)  # frame indices turned black (both cameras)
+    no_right: set[int] = field(default_factory=set)  # frame indices without the cam1 image
+    imu_gap: tuple[int, int] | None = None  # IMU samples removed in [t0, t1] ns
+
+    def __post_init__(self) -> None:
+        b = self.base
+        self.name: str = b.name  # type: ignore[attr-defined]
+        self.rig: StereoRig = b.rig  # type: ignore[attr-defined]
+        self.groundtruth: GroundTruth | None = b.groundtruth  # type: ignore[attr-defined]
+        self.leica: PositionData | None = b.leica  # type: ignore[attr-defined]
+        self.skips: SkipReport = b.skips  # type: ignore[attr-defined]
+        imu: ImuData = b.imu  # type: ignore[attr-defined]
+        if self.imu_gap is not None:
+            keep = (imu.t_ns < self.imu_gap[0]) | (imu.t_ns > self.imu_gap[1])
+            imu = ImuData(imu.t_ns[keep], imu.gyro[keep], imu.accel[keep])
+        self.imu = imu
+
+    @property
+    def frame_times(self) -> np.ndarray:
+        return self.base.frame_times  # type: ignore[attr-defined,no-any-return]
+
+    def frames(self, **kw: object) -> Iterator[StereoFrame]:
+        for i, f in enumerate(self.base.frames(**kw)):  # type: ignore[attr-defined]
+            if i in self.black:
+                z = np.zeros_like(f.left)
+                f = StereoFrame(f.t_ns, z, z.copy())
+            elif i in self.no_right:
+                f = StereoFrame(f.t_ns, f.left, None)
+            yield f
+
+
+def _gt(seq: object) -> Trajectory:
+    g = seq.groundtruth  # type: ignore[attr-defined]
+    return Trajectory(g.t_ns, g.p, g.q_wxyz, None, "gt")
+
+
+def _ate(res: RunResult, gt: Trajectory, final: bool = True) -> float:
+    t, T, s = (
+        (res.final_t_ns, res.final_T, res.final_segment)
+        if final
+        else (res.online_t_ns, res.online_T, res.online_segment)
+    )
+    tr = Trajectory.from_poses(t, T, s if np.unique(s).size > 1 else None, "est")
+    return float(evaluate(gt, tr).ate_trans.rmse)
+
+
+def test_static_start_on_real_micro(v101_micro: Path) -> None:
+    """The drone stands still: the estimate must barely move (first 1.5 s, default suite)."""
+    seq = open_sequence(v101_micro)
+    t0 = int(seq.frame_times[0])
+    res = SlamPipeline(seq, RunConfig()).run(t_end_ns=t0 + 1_500_000_000)
+    s = res.summary
+    assert s.init_modes == ["static"] and not s.resets
+    assert s.frames_with_pose == s.frames >= 25
+    p = res.online_T[:, :3, 3]
+    assert float(np.max(np.linalg.norm(p - p[0], axis=1))) < 0.02
+    pf = res.final_T[:, :3, 3]
+    assert float(np.max(np.linalg.norm(pf - pf[0], axis=1))) < 0.02
+    assert len(res.landmarks) > 50
+
+
+@pytest.mark.slow
+def test_static_whole_real_micro(v101_micro: Path) -> None:
+    seq = open_sequence(v101_micro)
+    res = SlamPipeline(seq, RunConfig()).run()
+    assert res.summary.frames_with_pose == res.summary.frames
+    p = res.online_T[:, :3, 3]
+    assert float(np.max(np.linalg.norm(p - p[0], axis=1))) < 0.02
+
+
+def test_synthetic_flight_accuracy(synth_seq: Path) -> None:
+    seq = open_sequence(synth_seq)
+    res = SlamPipeline(seq, RunConfig()).run()
+    s = res.summary
+    assert s.coverage >= 0.95 and not s.resets
+    gt = _gt(seq)
+    assert _ate(res, gt) < 0.05
+    assert _ate(res, gt, final=False) < 0.05
+    # the final trajectory covers exactly the frames that got an online pose
+    assert np.array_equal(res.final_t_ns, res.online_t_ns)
+
+
+def test_faults_bridged(synth_seq: Path) -> None:
+    """8 black stereo frames, 6 frames without cam1, a 0.5 s IMU dropout: one run, no reset,
+    a pose for nearly every frame, accuracy kept."""
+    base = open_sequence(synth_seq)
+    t_gap = int(base.frame_times[62])
+    seq = FaultySource(
+        base,
+        black=set(range(28, 36)),
+        no_right=set(range(44, 50)),
+        imu_gap=(t_gap, t_gap + 500_000_000),
+    )
+    res = SlamPipeline(seq, RunConfig()).run()  # type: ignore[arg-type]
+    s = res.summary
+    assert s.coverage >= 0.95, s.lines()
+    assert not s.resets, s.resets
+    assert s.state_frames.get(PipelineState.LOST.value, 0) >= 8
+    assert _ate(res, _gt(seq)) < 0.05
+
+
+@pytest.mark.slow
+def test_black_frames_bridged_by_imu(synth_seq: Path) -> None:
+    seq = FaultySource(open_sequence(synth_seq), black=set(range(50, 58)))
+    res = SlamPipeline(seq, RunConfig()).run()  # type: ignore[arg-type]
+    s = res.summary
+    assert s.coverage >= 0.95, s.lines()
+    assert not s.resets, s.resets
+    assert s.state_frames.get(PipelineState.LOST.value, 0) >= 8
+    assert _ate(res, _gt(seq)) < 0.05
+
+
+@pytest.mark.slow
+def test_missing_camera_bridged(synth_seq: Path) -> None:
+    seq = FaultySource(open_sequence(synth_seq), no_right=set(range(40, 46)))
+    res = SlamPipeline(seq, RunConfig()).run()  # type: ignore[arg-type]
+    assert res.summary.coverage >= 0.95 and not res.summary.resets
+    assert _ate(res, _gt(seq)) < 0.05
+
+
+@pytest.mark.slow
+def test_imu_gap_bridged_by_vision(synth_seq: Path) -> None:
+    base = open_sequence(synth_seq)
+    t_gap = int(base.frame_times[55])
+    seq = FaultySource(base, imu_gap=(t_gap, t_gap + 500_000_000))
+    res = SlamPipeline(seq, RunConfig()).run()  # type: ignore[arg-type]
+    assert res.summary.coverage >= 0.95, res.summary.lines()
+    assert _ate(res, _gt(seq)) < 0.05
+
+
+@pytest.mark.slow
+def test_visual_only(synth_seq: Path) -> None:
+    seq = open_sequence(synth_seq)
+    res = SlamPipeline(seq, RunConfig(), use_imu=False).run()
+    assert res.summary.mode == "visual-only"
+    assert res.summary.coverage >= 0.95
+    assert _ate(res, _gt(seq)) < 0.1
