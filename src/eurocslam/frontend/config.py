@@ -67,6 +67,7 @@ class FrontendConfig:
     reinit_after_lost_frames: int = 2  # consecutive LOST frames before re-creating the map
 
     # ---- visual odometry local bundle adjustment (vo.py) -----------------------------------
+    ba_enabled: bool = True  # False: frame-to-map tracking only (for comparison)
     ba_window_keyframes: int = 8  # keyframes optimised
     ba_fixed_keyframes: int = 2  # older keyframes held fixed (gauge + context)
     ba_pixel_sigma: float = 1.0

@@ -39,6 +39,7 @@ from eurocslam.frontend.tracking import (
     pnp_ransac,
     project_map,
     rect_T_from_body,
+    rigid,
     search_by_projection,
 )
 from eurocslam.frontend.types import FrontendResult, RectifiedStereo, TrackingState
@@ -94,12 +95,12 @@ class _VelocityModel:
                 self.v, self.w = v, w
             else:
                 self.v, self.w = np.zeros(3), np.zeros(3)
-        self.t_ns, self.T = t_ns, T_world_body.copy()
+        self.t_ns, self.T = t_ns, rigid(T_world_body)
 
     def shift(self, T_new_old: F64) -> None:
         """Apply a world correction (the backend moved the last pose)."""
         if self.T is not None:
-            self.T = T_new_old @ self.T
+            self.T = rigid(T_new_old @ self.T)
 
     def reset_motion(self) -> None:
         self.v, self.w = np.zeros(3), np.zeros(3)
@@ -108,7 +109,7 @@ class _VelocityModel:
         if self.T is None or self.t_ns is None:
             return None
         dt = max(0.0, (t_ns - self.t_ns) * 1e-9)
-        return self.T @ make_T(so3_exp(self.w * dt), self.v * dt)
+        return rigid(self.T @ make_T(so3_exp(self.w * dt), self.v * dt))
 
 
 class StereoFrontend:
@@ -206,7 +207,7 @@ class StereoFrontend:
     ) -> None:
         """Adopt the backend's optimised pose of the *last processed frame* and landmark
         positions (dict id -> xyz, or (ids, (N, 3))). Unknown ids are ignored."""
-        T_new = np.asarray(T_world_body, dtype=np.float64)
+        T_new = rigid(np.asarray(T_world_body, dtype=np.float64))
         if self.last_T_world_body is not None:
             self._motion.shift(T_new @ inv_T(self.last_T_world_body))
         self.last_T_world_body = T_new.copy()
@@ -268,7 +269,7 @@ class StereoFrontend:
         if T_world_body_pred is None:
             pred = self._motion.predict(ff.t_ns)
         else:
-            pred = np.asarray(T_world_body_pred, dtype=np.float64)
+            pred = rigid(np.asarray(T_world_body_pred, dtype=np.float64))
         if ff.problem is not None:
             return self._result(ff, TrackingState.NO_IMAGE, None, timings, t0)
         if not self._initialized:

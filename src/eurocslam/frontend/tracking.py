@@ -69,14 +69,28 @@ class LocalMap:
         return np.where(found, pos, -1)
 
 
+def rigid(T: F64) -> F64:
+    """The nearest rigid transform: rotation projected onto SO(3) (SVD), bottom row exact.
+
+    Every pose entering or leaving tracking passes through here: a rotation that is slightly
+    off SO(3) makes `inv_T` (a transpose) an inexact inverse, and compositions amplify it.
+    """
+    T = np.asarray(T, dtype=np.float64)
+    u, _, vt = np.linalg.svd(T[:3, :3])
+    R = u @ vt
+    if np.linalg.det(R) < 0:
+        R = u @ np.diag([1.0, 1.0, -1.0]) @ vt
+    return make_T(R, T[:3, 3])
+
+
 def rect_T_from_body(T_world_body: F64, T_body_rect0: F64) -> F64:
     """T_rect0_world from T_world_body."""
-    return inv_T(T_world_body @ T_body_rect0)
+    return rigid(inv_T(rigid(T_world_body) @ T_body_rect0))
 
 
 def body_T_from_rect(T_rect0_world: F64, T_body_rect0: F64) -> F64:
     """T_world_body from T_rect0_world."""
-    return inv_T(T_rect0_world) @ inv_T(T_body_rect0)
+    return rigid(inv_T(rigid(T_rect0_world)) @ inv_T(T_body_rect0))
 
 
 @dataclass(frozen=True)
@@ -191,7 +205,7 @@ def optimize_pose(
     the robust kernel is dropped in the last round. `sigma` is the pixel sigma per measurement
     (octave scale). Returns (T_rect0_world, inlier mask, chi2 per measurement).
     """
-    T = T_rect0_world.copy()
+    T = rigid(T_rect0_world)
     n = xyz.shape[0]
     inlier = np.ones(n, dtype=bool)
     chi2 = np.zeros(n)
@@ -264,7 +278,7 @@ def optimize_pose(
         res = (np.column_stack([u, uR, v]) - meas_f) * comp_w
         chi2 = (res * res).sum(axis=1) * inv_s2
         inlier = (chi2 < thr) & (z > 0.05)
-    return T, inlier, chi2
+    return rigid(T), inlier, chi2
 
 
 def pnp_ransac(

@@ -111,7 +111,7 @@ class VisualOdometry:
                 )
             )
             self._kf_counter += 1
-            if len(self.keyframes) >= 2:
+            if self.config.ba_enabled and len(self.keyframes) >= 2:
                 t0 = time.perf_counter()
                 T = self._local_ba()
                 ms = (time.perf_counter() - t0) * 1e3
