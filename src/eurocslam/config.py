@@ -63,6 +63,7 @@ class BackendConfig:
     max_depth_m: float = 40.0
     min_obs_without_imu: int = 10  # a keyframe without an IMU factor needs this many points
     max_landmarks_per_keyframe: int = 150
+    min_keyframe_interval_s: float = 0.2  # frontend keyframes closer than this are skipped
     max_keyframe_interval_s: float = 0.5  # force a keyframe after this long (bounds IMU spans)
     final_batch: bool = True  # one full Levenberg-Marquardt over each segment at the end
     final_batch_max_iterations: int = 30

@@ -467,11 +467,13 @@ class SlamPipeline:
                 tracked = False
                 self.frontend.correct(pred.T_world_body)
         if tracked and fr.T_world_body is not None:
+            since_kf = (t - est.state.t_ns) * 1e-9
+            bc = self.cfg.backend
             need_kf = (
-                fr.is_keyframe
+                (fr.is_keyframe and since_kf >= bc.min_keyframe_interval_s)
                 or fr.state == TrackingState.INIT
                 or self.state == PipelineState.LOST
-                or (t - est.state.t_ns) * 1e-9 >= self.cfg.backend.max_keyframe_interval_s
+                or since_kf >= bc.max_keyframe_interval_s
             )
             if need_kf:
                 t0 = time.perf_counter()

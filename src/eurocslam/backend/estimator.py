@@ -108,8 +108,10 @@ class StereoInertialEstimator:
         self.state: NavEstimate | None = None
         self.lm_key: dict[int, int] = {}  # frontend landmark id -> current key index
         self._next_lm = 0
-        self.landmarks: dict[int, F64] = {}  # key index -> world position (active window)
-        self.lm_fid: dict[int, int] = {}  # key index -> frontend id
+        # per landmark key index: latest position, frontend id, still in the smoother window
+        self._lm_pos = np.zeros((1024, 3))
+        self._lm_fid = np.zeros(1024, np.int64)
+        self._lm_active = np.zeros(1024, bool)
         self.segment = _Segment()
         self.pim: gtsam.PreintegratedCombinedMeasurements | None = None
         self._pim_t_ns = 0
@@ -330,7 +332,7 @@ class StereoInertialEstimator:
         idx = np.nonzero(ok)[0]
         if idx.size > b.max_landmarks_per_keyframe:
             # prefer landmarks already in the graph, then the nearest
-            known = np.array([int(ids[i]) in self.lm_key for i in idx])
+            known = np.array([self._is_active(int(ids[i])) for i in idx], dtype=bool)
             order = np.lexsort((depth[idx], ~known))
             idx = idx[order[: b.max_landmarks_per_keyframe]]
         T_world_rect0 = np.asarray(T_world_body) @ st.T_body_rect0
@@ -338,16 +340,13 @@ class StereoInertialEstimator:
         for i in idx.tolist():
             fid = int(ids[i])
             key_i = self.lm_key.get(fid)
-            if key_i is None or key_i not in self.landmarks:
-                key_i = self._next_lm
-                self._next_lm += 1
-                self.lm_key[fid] = key_i
-                self.lm_fid[key_i] = fid
+            if key_i is None or not self._lm_active[key_i]:
+                key_i = self._new_landmark_key(fid)
                 z = depth[i]
                 Xc = np.array([(uv[i, 0] - st.cx) * z / st.fx, (uv[i, 2] - st.cy) * z / st.fy, z])
                 Xw = T_world_rect0[:3, :3] @ Xc + T_world_rect0[:3, 3]
                 values.insert(L(key_i), gtsam.Point3(*Xw))
-                self.landmarks[key_i] = Xw
+                self._lm_pos[key_i] = Xw
                 n_new += 1
             stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
             graph.add(
@@ -383,17 +382,16 @@ class StereoInertialEstimator:
         except RuntimeError as e:
             raise EstimatorFailure(f"smoother update failed: {e}") from None
         self._est = est
-        # active landmarks: those still in the window
-        active: dict[int, F64] = {}
-        for key_i in list(self.landmarks):
-            key = L(key_i)
-            if est.exists(key):
-                p = est.atPoint3(key)
-                active[key_i] = np.asarray(p)
-                self.segment.values[key] = p
-            else:
-                self.lm_fid.pop(key_i, None)
-        self.landmarks = active
+        # landmarks still in the window, read in one call (keys sort 'l' before 'v': the
+        # landmarks are the first rows of extractPoint3, which also returns the velocities)
+        keys = np.asarray(est.keys(), dtype=np.uint64)
+        is_l = (keys >> np.uint64(56)) == np.uint64(ord("l"))
+        lidx = (keys[is_l] & np.uint64((1 << 56) - 1)).astype(np.int64)
+        self._lm_active[: self._next_lm] = False
+        if lidx.size:
+            pts = np.asarray(gtsam.utilities.extractPoint3(est))[: lidx.size]
+            self._lm_pos[lidx] = pts
+            self._lm_active[lidx] = True
 
     def _read_state(self, k: int, t_ns: int) -> NavEstimate:
         est = self._est
@@ -432,10 +430,31 @@ class StereoInertialEstimator:
 
     def active_landmarks(self) -> tuple[np.ndarray, F64]:
         """Frontend ids and world positions of the landmarks in the smoother window."""
-        keys = [k for k in self.landmarks if k in self.lm_fid]
-        ids = np.array([self.lm_fid[k] for k in keys], dtype=np.int64)
-        pts = np.array([self.landmarks[k] for k in keys]).reshape(-1, 3)
-        return ids, pts
+        act = np.nonzero(self._lm_active[: self._next_lm])[0]
+        return self._lm_fid[act].copy(), self._lm_pos[act].copy()
+
+    @property
+    def n_active_landmarks(self) -> int:
+        return int(self._lm_active[: self._next_lm].sum())
+
+    def _is_active(self, fid: int) -> bool:
+        k = self.lm_key.get(fid)
+        return k is not None and bool(self._lm_active[k])
+
+    def _new_landmark_key(self, fid: int) -> int:
+        key_i = self._next_lm
+        self._next_lm += 1
+        if key_i >= self._lm_pos.shape[0]:
+            n = 2 * self._lm_pos.shape[0]
+            self._lm_pos = np.resize(self._lm_pos, (n, 3))
+            self._lm_fid = np.resize(self._lm_fid, n)
+            act = np.zeros(n, bool)
+            act[: self._lm_active.size] = self._lm_active
+            self._lm_active = act
+        self.lm_key[fid] = key_i
+        self._lm_fid[key_i] = fid
+        self._lm_active[key_i] = True
+        return key_i
 
     # ---- final batch ---------------------------------------------------------------------------
     def final_batch(self, max_iterations: int = 30) -> tuple[dict[int, F64], dict[int, F64]]:
@@ -445,20 +464,15 @@ class StereoInertialEstimator:
         smoother's estimates if the batch fails to converge."""
         vals = gtsam.Values()
         for key, v in self.segment.values.items():
-            c = chr(gtsam.Symbol(key).chr())
-            if c == "l":
-                vals.insert(key, gtsam.Point3(*np.asarray(v, dtype=float)))
-            elif c == "v":
+            if chr(gtsam.Symbol(key).chr()) == "v":
                 vals.insert(key, np.asarray(v, dtype=float))
             else:
                 vals.insert(key, v)
+        lms = {i: self._lm_pos[i].copy() for i in range(self._next_lm)}
+        for i, p in lms.items():
+            vals.insert(L(i), gtsam.Point3(*p))
         graph = self.segment.graph
         poses = {kk: e.T_world_body for kk, e in self.kf_estimates.items()}
-        lms = {
-            gtsam.Symbol(key).index(): np.asarray(v)
-            for key, v in self.segment.values.items()
-            if gtsam.Symbol(key).chr() == ord("l")
-        }
         try:
             params = gtsam.LevenbergMarquardtParams()
             params.setMaxIterations(max_iterations)
