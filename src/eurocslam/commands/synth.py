@@ -14,7 +14,7 @@ _SWITCHES = (
     ("noise", "image_noise", "image sensor noise (read + shot noise)"),
     ("vignetting", "vignetting", "lens vignetting"),
     ("exposure", "exposure", "slow exposure (gain) changes"),
-    ("blur", "motion_blur", "motion blur over an 8 ms exposure (4x render cost)"),
+    ("blur", "motion_blur", "motion blur over an 8 ms exposure (5x render cost)"),
     ("imu-noise", "imu_noise", "IMU white noise and bias random walk from imu0/sensor.yaml"),
     ("bias", "imu_bias", "non-zero initial IMU biases"),
 )

@@ -39,7 +39,7 @@ READ_NOISE_DN = 1.5  # read noise sigma [DN]
 SHOT_NOISE_GAIN = 0.05  # shot-noise variance per DN of signal
 EXPOSURE_SPREAD = 0.15  # log-gain amplitude of the slow exposure changes
 BLUR_EXPOSURE_S = 0.008  # exposure window for motion blur
-BLUR_SUBFRAMES = 4
+BLUR_SUBFRAMES = 4  # renders besides the one at the frame time
 
 
 @dataclass(frozen=True)
