@@ -1,0 +1,216 @@
+#!/usr/bin/env python3
+"""Accuracy, coverage, speed and memory of `eurocslam run` on semi-real replicas of EuRoC.
+
+For each of the 11 EuRoC sequences, `eurocslam synth` renders a replica from the real ground
+truth (`../shared/data/euroc/groundtruth`): real motion, rendered stereo through the real camera
+model, simulated IMU (V1_01: its real IMU rows). Each replica is then run twice, stereo-inertial
+and `--no-imu`, each in its own subprocess with MCAP writing (peak RSS from `os.wait4`), and the
+final trajectory is evaluated against the replica's exact ground truth: translation ATE RMSE
+after SE(3) Umeyama alignment. The published numbers beside them are stereo-inertial results on
+the REAL images (GUIDE section 4), for scale only: a replica is easier (no motion blur,
+exposure changes are milder, no rolling shutter).
+
+Full-length replicas of all 11 sequences take long on 2 cores: `--duration S` crops each replica
+to its first S seconds (MH sequences then include the pick-up: a dynamic initialisation), and
+`--cache DIR` keeps the rendered replicas between runs. The header states exactly what ran.
+
+usage: .venv/bin/python benchmarks/bench_slam.py [--duration 20] [--sequences V1_01 MH_01]
+       [--cache /tmp/eurocslam_replicas] [--no-vo] [--no-mcap]
+The machine is shared and noisy: real-time factors are indicative; compare within one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = Path(os.environ.get("EUROCSLAM_SHARED_EUROC", REPO.parent / "shared/data/euroc"))
+GT_DIR = SHARED / "groundtruth"
+V101_IMU = SHARED / "V1_01_easy_micro" / "mav0" / "imu0" / "data.csv"
+EXE = REPO / ".venv" / "bin" / "eurocslam"
+
+SEQUENCES = {
+    "MH_01": "MH_01_easy",
+    "MH_02": "MH_02_easy",
+    "MH_03": "MH_03_medium",
+    "MH_04": "MH_04_difficult",
+    "MH_05": "MH_05_difficult",
+    "V1_01": "V1_01_easy",
+    "V1_02": "V1_02_medium",
+    "V1_03": "V1_03_difficult",
+    "V2_01": "V2_01_easy",
+    "V2_02": "V2_02_medium",
+    "V2_03": "V2_03_difficult",
+}
+# published stereo-inertial ATE RMSE [m] on the real sequences (GUIDE section 4)
+PUBLISHED = {
+    "MH_01": (0.037, 0.07, 0.166),
+    "MH_02": (0.031, 0.06, 0.152),
+    "MH_03": (0.026, 0.07, 0.125),
+    "MH_04": (0.059, 0.13, 0.280),
+    "MH_05": (0.086, 0.11, 0.284),
+    "V1_01": (0.037, 0.04, 0.076),
+    "V1_02": (0.014, 0.05, 0.069),
+    "V1_03": (0.023, 0.10, 0.114),
+    "V2_01": (0.037, 0.04, 0.066),
+    "V2_02": (0.014, 0.05, 0.091),
+    "V2_03": (0.029, None, 0.096),
+}
+
+
+def gt_file(full: str) -> Path:
+    csv = GT_DIR / f"{full}.csv"
+    return csv if csv.exists() else GT_DIR / f"{full}.txt"
+
+
+def make_replica(short: str, cache: Path, duration: float | None, seed: int) -> Path:
+    from eurocslam.dataset.synth import SynthSpec, synthesize
+
+    tag = f"{short}_{'full' if duration is None else f'{duration:g}s'}_s{seed}"
+    out = cache / tag
+    if (out / "mav0").is_dir():
+        return out
+    spec = SynthSpec(
+        trajectory=gt_file(SEQUENCES[short]),
+        imu=V101_IMU if short == "V1_01" and V101_IMU.exists() else None,
+        duration_s=duration,
+        seed=seed,
+    )
+    t = time.perf_counter()
+    synthesize(spec, out, progress=False, overwrite=True)
+    print(f"  synth {tag}: {time.perf_counter() - t:.0f} s", file=sys.stderr, flush=True)
+    return out
+
+
+def run_one(seq: Path, out: Path, no_imu: bool, mcap: bool) -> dict[str, object]:
+    cmd = [str(EXE), "run", str(seq), "-o", str(out), "--no-progress"]
+    if no_imu:
+        cmd.append("--no-imu")
+    if not mcap:
+        cmd.append("--no-mcap")
+    t = time.perf_counter()
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    _, status, usage = os.wait4(p.pid, 0)
+    wall = time.perf_counter() - t
+    stdout = p.stdout.read() if p.stdout else ""
+    stderr = p.stderr.read() if p.stderr else ""
+    rc = os.waitstatus_to_exitcode(status)
+    res: dict[str, object] = {"rc": rc, "wall_s": wall, "rss_mb": usage.ru_maxrss / 1024}
+    if rc != 0:
+        res["error"] = (stderr or stdout).strip().splitlines()[-1:] or ["?"]
+        return res
+    summary = json.loads((out / "summary.json").read_text())
+    res["summary"] = summary
+    res["ate_final"] = ate(seq, out / "trajectory_final.tum")
+    res["ate_online"] = ate(seq, out / "trajectory_online.tum")
+    return res
+
+
+def ate(seq: Path, est_path: Path) -> float:
+    from eurocslam.eval.evaluate import EvalConfig, evaluate
+    from eurocslam.io.trajectory_io import read_euroc_csv, read_tum
+
+    gt = read_euroc_csv(seq / "mav0" / "state_groundtruth_estimate0" / "data.csv")
+    est = read_tum(est_path)
+    return float(evaluate(gt, est, EvalConfig(align="se3")).ate_trans.rmse)
+
+
+def fmt(v: float | None, spec: str = ".3f") -> str:
+    return "-" if v is None else format(v, spec)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--duration",
+        type=float,
+        default=20.0,
+        help="crop each replica to its first S seconds (0: full length)",
+    )
+    ap.add_argument("--sequences", nargs="+", choices=list(SEQUENCES), default=list(SEQUENCES))
+    ap.add_argument(
+        "--cache", type=Path, default=Path(tempfile.gettempdir()) / "eurocslam_replicas"
+    )
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-vo", action="store_true", help="skip the visual-only runs")
+    ap.add_argument("--no-mcap", action="store_true", help="runs without writing run.mcap")
+    ap.add_argument("--json", type=Path, help="also save every result as JSON here")
+    args = ap.parse_args()
+    if not GT_DIR.is_dir():
+        print(f"ground truth folder not found: {GT_DIR}", file=sys.stderr)
+        return 2
+    duration = args.duration if args.duration > 0 else None
+    args.cache.mkdir(parents=True, exist_ok=True)
+    span = "full length" if duration is None else f"first {duration:g} s"
+    print(
+        f"# eurocslam run on semi-real replicas ({span} of each sequence, seed {args.seed}, "
+        f"MCAP {'off' if args.no_mcap else 'on'}); replicas in {args.cache}"
+    )
+    rows = []
+    results: dict[str, dict[str, object]] = {}
+    for short in args.sequences:
+        seq = make_replica(short, args.cache, duration, args.seed)
+        with tempfile.TemporaryDirectory(prefix="bench_slam_") as tmp:
+            vio = run_one(seq, Path(tmp) / "vio", False, not args.no_mcap)
+            vo = None if args.no_vo else run_one(seq, Path(tmp) / "vo", True, not args.no_mcap)
+        results[short] = {"vio": vio, "vo": vo}
+        rows.append((short, vio, vo))
+        print(
+            f"  {short}: VIO {fmt(vio.get('ate_final'))} m"
+            + (f", VO {fmt(vo.get('ate_final'))} m" if vo else ""),
+            file=sys.stderr,
+            flush=True,
+        )
+
+    hdr = (
+        f"{'seq':<6}{'dur s':>6}{'VIO ATE':>9}{'online':>8}{'VO ATE':>8}{'VIO<VO':>7}"
+        f"{'pose %':>8}{'resets':>7}{'init':>8}{'RTF':>6}{'RSS MB':>8}"
+        f"{'ORB3*':>7}{'Basalt*':>8}{'VINS*':>7}"
+    )
+    print(hdr)
+    print("-" * len(hdr))
+    for short, vio, vo in rows:
+        s = vio.get("summary") or {}
+        vo_ate = vo.get("ate_final") if vo else None
+        better = (
+            "-"
+            if vo_ate is None or "ate_final" not in vio
+            else ("yes" if vio["ate_final"] < vo_ate else "NO")
+        )
+        pub = PUBLISHED[short]
+        if vio.get("rc") != 0:
+            print(f"{short:<6} FAILED: {vio.get('error')}")
+            continue
+        print(
+            f"{short:<6}{s.get('duration_s', 0):>6.1f}{fmt(vio['ate_final']):>9}"
+            f"{fmt(vio['ate_online']):>8}{fmt(vo_ate):>8}{better:>7}"
+            f"{100 * s.get('coverage', 0):>8.1f}{len(s.get('resets', [])):>7}"
+            f"{','.join(s.get('init_modes', [])):>8}{s.get('realtime_factor', 0):>6.2f}"
+            f"{vio['rss_mb']:>8.0f}{fmt(pub[0]):>7}{fmt(pub[1], '.2f'):>8}{fmt(pub[2]):>7}"
+        )
+    print("ATE: translation RMSE [m] after SE(3) alignment, final trajectory (online: causal).")
+    print("* published stereo-inertial results on the REAL EuRoC images (not these replicas).")
+    # per-stage timings of the stereo-inertial runs (medians over sequences)
+    stages: dict[str, list[float]] = {}
+    for _, vio, _ in rows:
+        for k, v in ((vio.get("summary") or {}).get("timings") or {}).items():
+            stages.setdefault(k, []).append(v["median_ms"])
+    if stages:
+        print(
+            "per-stage median ms per call (median over sequences): "
+            + ", ".join(f"{k} {sorted(v)[len(v) // 2]:.1f}" for k, v in stages.items())
+        )
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
