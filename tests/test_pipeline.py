@@ -170,3 +170,25 @@ def test_visual_only(synth_seq: Path) -> None:
     assert res.summary.mode == "visual-only"
     assert res.summary.coverage >= 0.95
     assert _ate(res, _gt(seq)) < 0.1
+
+
+def test_reset_starts_a_new_segment(synth_seq: Path, tmp_path: Path) -> None:
+    """Blind for longer than allowed: the segment ends, the estimator re-initialises (moving:
+    dynamic init), the outputs carry segment ids, and nearly every frame still has a pose."""
+    from eurocslam.config import config_from_dict
+    from eurocslam.io.trajectory_io import read_tum
+    from eurocslam.runner import write_outputs
+
+    cfg = config_from_dict({"health": {"max_lost_s": 0.2}})
+    seq = FaultySource(open_sequence(synth_seq), black=set(range(30, 38)))
+    res = SlamPipeline(seq, cfg).run()  # type: ignore[arg-type]
+    s = res.summary
+    assert len(s.resets) == 1 and "no visual tracking" in s.resets[0][1]
+    assert s.segments == 2 and len(s.init_modes) == 2
+    assert s.coverage >= 0.9, s.lines()
+    assert set(np.unique(res.final_segment)) == {0, 1}
+    write_outputs(tmp_path, res, cfg)
+    tum = read_tum(tmp_path / "trajectory_final.tum")
+    assert tum.has_segments
+    # each segment is evaluated in its own frame
+    assert _ate(res, _gt(seq)) < 0.05
