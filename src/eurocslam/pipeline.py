@@ -386,7 +386,7 @@ class SlamPipeline:
                 init = dynamic_init(
                     self.est.params, self.imu, [w[0] for w in sel], [w[1] for w in sel], g
                 )
-            except ValueError:
+            except (ValueError, np.linalg.LinAlgError):
                 if span < 3 * c.dynamic_window_s:
                     return self._out(t, PipelineState.INIT, fr.T_world_body, False, fr)
                 init = self._fallback_init()
@@ -547,6 +547,9 @@ class SlamPipeline:
                 if 0 <= k < len(T):
                     T[k] = e.T_world_body
         return t, T
+
+    def n_active_landmarks(self) -> int:
+        return 0 if self.est is None else self.est.n_active_landmarks
 
     def active_landmarks(self) -> F64:
         if self.est is None:

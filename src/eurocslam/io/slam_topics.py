@@ -160,7 +160,7 @@ class SlamMcapWriter:
             fr.n_features if fr else 0,
             fr.n_stereo if fr else 0,
             fr.n_tracked if fr else 0,
-            n_active if out.is_keyframe else len(pipeline.active_landmarks()),
+            n_active if out.is_keyframe else pipeline.n_active_landmarks(),
             out.segment,
             1.0 if out.is_keyframe else 0.0,
         ]
