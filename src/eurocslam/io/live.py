@@ -487,7 +487,7 @@ class LiveSink:
                 self._broadcast_time(now_ns)
             for t in self._topics.values():
                 if t.latched and t.last is not None:
-                    t.channel.log(t.last[1], log_time=t.last[0])
+                    t.channel.log(t.last[1], log_time=self._resend_time(t.last[0]))
 
     def _on_subscribe(self, client_id: int, channel_id: int) -> None:
         with self._sub_cond:
@@ -511,7 +511,12 @@ class LiveSink:
                 if t.latched and t.last is not None and t.channel.id() == channel_id:
                     if self._last_time_broadcast < 0:  # nothing played yet: start the clock
                         self._broadcast_time(t.last[0])
-                    t.channel.log(t.last[1], log_time=t.last[0])
+                    t.channel.log(t.last[1], log_time=self._resend_time(t.last[0]))
+
+    def _resend_time(self, t_ns: int) -> int:
+        """Log time of a re-sent latched message: now on the viewer's clock, never older (viewers
+        stamp messages with it and warn 'data went back in time')."""
+        return max(int(t_ns), self._last_time_broadcast)
 
     def _on_unsubscribe(self, client_id: int, channel_id: int) -> None:
         with self._sub_cond:
@@ -534,24 +539,43 @@ class LiveSink:
             s, self._seek_ns = self._seek_ns, None
             return s
 
-    def clear_session(self) -> None:
-        """Tell viewers to drop what they have (e.g. before playing the file again)."""
-        self._server.clear_session()
+    def restart_at(self, t_ns: int, *, announce: bool = True) -> None:
+        """Playback jumps to `t_ns` (a seek, or the start again when looping): re-anchor the
+        pacing clock, set the viewers' clock (a clock going back makes Foxglove drop what it
+        holds, as on a seek), tell ranged-playback viewers that a seek happened (`announce`;
+        a seek the viewer asked for is answered by the listener instead), and re-send the
+        latched messages."""
+        self.clock.reanchor()
+        if announce:
+            self._broadcast_state(self._playing_status(), int(t_ns), did_seek=True)
+        self.replay_latched(int(t_ns))
 
-    def broadcast_ended(self) -> None:
-        from foxglove.websocket import PlaybackState, PlaybackStatus
+    def _playing_status(self) -> Any:
+        from foxglove.websocket import PlaybackStatus
+
+        return PlaybackStatus.Paused if self.clock.paused else PlaybackStatus.Playing
+
+    def _broadcast_state(self, status: Any, t_ns: int, *, did_seek: bool = False) -> None:
+        from foxglove.websocket import PlaybackState
 
         if self.playback_range_ns is None:
             return
         self._server.broadcast_playback_state(
             PlaybackState(
-                status=PlaybackStatus.Ended,
-                current_time=int(self.clock.last_ns or self.playback_range_ns[1]),
+                status=status,
+                current_time=int(t_ns),
                 playback_speed=float(self.clock.rate or 1.0),
-                did_seek=False,
+                did_seek=did_seek,
                 request_id=None,
             )
         )
+
+    def broadcast_ended(self) -> None:
+        from foxglove.websocket import PlaybackStatus
+
+        if self.playback_range_ns is not None:
+            end = self.clock.last_ns or self.playback_range_ns[1]
+            self._broadcast_state(PlaybackStatus.Ended, int(end))
 
     def close(self) -> None:
         if self._closed:
@@ -699,7 +723,7 @@ def play_mcap(
     on_message: Callable[[int], None] | None = None,
 ) -> PlayResult:
     """Send the file's messages to `sink` in log-time order, paced by its clock. Handles seek
-    requests from the viewer; with `loop`, starts again at the end (viewers are told to clear).
+    requests from the viewer; with `loop`, starts again at the end (like a seek to the start).
     `stop_when_no_clients()` is polled between messages: when it returns True, playback stops.
     """
     res = PlayResult()
@@ -727,15 +751,12 @@ def play_mcap(
         if seek is not None:
             res.seeks += 1
             start = max(info.start_ns, min(seek, info.end_ns))
-            sink.clock.reanchor()
-            sink.replay_latched(start)
+            sink.restart_at(start, announce=False)  # the listener answered the request
             continue
         if loop and not sink.clock.stopped:
             res.loops += 1
             start = None
-            sink.clear_session()
-            sink.clock.reanchor()
-            sink.replay_latched(info.start_ns)
+            sink.restart_at(info.start_ns)
             continue
         res.finished = True
         sink.broadcast_ended()
