@@ -295,6 +295,7 @@ class StereoFrontend:
         is_kf = self._need_keyframe(ff, inlier_rows, inlier_kps)
         ids = m.ids[inlier_rows]
         uv = self._stereo_uv(ff, inlier_kps)
+        obs_kps = inlier_kps
         tracked = np.zeros(len(ff.left), dtype=bool)
         tracked[inlier_kps] = True
         n_tracked = int(inlier_rows.size)
@@ -302,6 +303,7 @@ class StereoFrontend:
             new_ids, new_kps = self._create_landmarks(ff, T_world_body, tracked)
             ids = np.concatenate([ids, new_ids])
             uv = np.concatenate([uv, self._stereo_uv(ff, new_kps)])
+            obs_kps = np.concatenate([inlier_kps, new_kps])
             m.kf_uv[:] = np.nan
             rows = m.index_of(ids)
             m.kf_uv[rows] = ff.left.uv[np.concatenate([inlier_kps, new_kps])]
@@ -319,6 +321,7 @@ class StereoFrontend:
             is_kf=is_kf,
             tracked=tracked,
             n_tracked=n_tracked,
+            obs_kps=obs_kps,
         )
 
     # ---- internals --------------------------------------------------------------------------
@@ -370,6 +373,7 @@ class StereoFrontend:
             is_kf=True,
             tracked=tracked,
             n_tracked=0,
+            obs_kps=kps,
         )
 
     def _create_landmarks(
@@ -562,6 +566,7 @@ class StereoFrontend:
         is_kf: bool = False,
         tracked: NDArray[np.bool_] | None = None,
         n_tracked: int = 0,
+        obs_kps: NDArray[np.intp] | None = None,
     ) -> FrontendResult:
         t_draw = time.perf_counter()
         draw = self._rectifier.rect0_to_raw(ff.left.uv) if len(ff.left) else np.zeros((0, 2))
@@ -580,6 +585,11 @@ class StereoFrontend:
             draw_uv=draw,
             draw_tracked=tracked if tracked is not None else np.zeros(len(ff.left), dtype=bool),
             timings_ms=timings,
+            stereo_sigma=(
+                np.zeros(0)
+                if obs_kps is None
+                else self.scale[np.clip(ff.left.octave[obs_kps], 0, self.scale.size - 1)]
+            ),
         )
 
 

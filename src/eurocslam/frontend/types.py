@@ -56,3 +56,6 @@ class FrontendResult:
     draw_uv: F64 = field(default_factory=lambda: np.zeros((0, 2)))
     draw_tracked: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))
     timings_ms: dict[str, float] = field(default_factory=dict)
+    # (N,) pixel standard deviation of each stereo_uv row: the ORB octave scale of its keypoint
+    # (1.0 at full resolution, 1.2**k at pyramid level k); multiply by a base sigma for factors
+    stereo_sigma: F64 = field(default_factory=lambda: np.zeros(0))

@@ -40,6 +40,7 @@ class _Keyframe:
     T_world_body: F64
     ids: NDArray[np.int64]
     uv: F64  # (N, 3) uL, uR (NaN: mono), v
+    sigma: F64  # (N,) pixel sigma factor (octave scale)
 
 
 def _X(i: int) -> int:
@@ -67,12 +68,21 @@ class VisualOdometry:
         self._body_P_rect0 = gtsam.Pose3(g.T_body_rect0)
         c = self.config
         huber = gtsam.noiseModel.mEstimator.Huber.Create(c.ba_huber_k)
-        self._noise3 = gtsam.noiseModel.Robust.Create(
-            huber, gtsam.noiseModel.Isotropic.Sigma(3, c.ba_pixel_sigma)
-        )
-        self._noise2 = gtsam.noiseModel.Robust.Create(
-            huber, gtsam.noiseModel.Isotropic.Sigma(2, c.ba_pixel_sigma)
-        )
+        # one robust noise model per pyramid octave (sigma = base * octave scale)
+        scales = c.orb_scale_factor ** np.arange(c.orb_levels)
+        self._octave_scales = scales
+        self._noise3 = [
+            gtsam.noiseModel.Robust.Create(
+                huber, gtsam.noiseModel.Isotropic.Sigma(3, c.ba_pixel_sigma * s)
+            )
+            for s in scales
+        ]
+        self._noise2 = [
+            gtsam.noiseModel.Robust.Create(
+                huber, gtsam.noiseModel.Isotropic.Sigma(2, c.ba_pixel_sigma * s)
+            )
+            for s in scales
+        ]
         self._fixed = gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)
         self._chi2_stereo = c.pose_chi2_stereo
         self._chi2_mono = c.pose_chi2_mono
@@ -108,6 +118,7 @@ class VisualOdometry:
                     T.copy(),
                     res.landmark_ids.copy(),
                     res.stereo_uv.copy(),
+                    res.stereo_sigma.copy(),
                 )
             )
             self._kf_counter += 1
@@ -129,6 +140,13 @@ class VisualOdometry:
             yield self.track(ff)
 
     # ---- local bundle adjustment ----------------------------------------------------------
+    def _octave_of(self, sigma: F64) -> NDArray[np.intp]:
+        """Pyramid octave of each observation from its sigma factor (scale ** octave)."""
+        if sigma.size == 0:
+            return np.zeros(0, np.intp)
+        o = np.rint(np.log(np.maximum(sigma, 1.0)) / np.log(self.config.orb_scale_factor))
+        return np.clip(o.astype(np.intp), 0, self._octave_scales.size - 1)
+
     def _local_ba(self) -> F64:
         c = self.config
         kfs = list(self.keyframes)
@@ -142,8 +160,10 @@ class VisualOdometry:
         keep = np.all(np.isfinite(xyz), axis=1) & np.isin(all_ids, stereo_ids) & (n_obs >= 2)
         ids, xyz, n_obs = all_ids[keep], xyz[keep], n_obs[keep]
         if ids.size > c.ba_max_landmarks:
-            # the most observed landmarks constrain the window best; ties: newest first
-            order = np.lexsort((-ids, -n_obs))[: c.ba_max_landmarks]
+            # the most observed landmarks constrain the window best; ties broken by a hash of
+            # the id (an unbiased sample: ids follow creation order, which is depth order)
+            mix = (ids.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(1 << 32)
+            order = np.lexsort((mix, -n_obs))[: c.ba_max_landmarks]
             order.sort()
             ids, xyz = ids[order], xyz[order]
         if ids.size == 0:
@@ -159,13 +179,15 @@ class VisualOdometry:
                     gtsam.PriorFactorPose3(_X(kf.index), gtsam.Pose3(kf.T_world_body), self._fixed)
                 )
             obs = np.nonzero(np.isin(kf.ids, ids))[0]
+            octave = self._octave_of(kf.sigma)
             for r in obs.tolist():
                 lid = int(kf.ids[r])
                 uL, uR, v = kf.uv[r]
+                o = int(octave[r])
                 if np.isfinite(uR):
                     f = gtsam.GenericStereoFactor3D(
                         gtsam.StereoPoint2(uL, uR, v),
-                        self._noise3,
+                        self._noise3[o],
                         _X(kf.index),
                         _L(lid),
                         self._K_stereo,
@@ -175,7 +197,7 @@ class VisualOdometry:
                 else:
                     f = gtsam.GenericProjectionFactorCal3_S2(
                         np.array([uL, v]),
-                        self._noise2,
+                        self._noise2[o],
                         _X(kf.index),
                         _L(lid),
                         self._K_mono,
@@ -199,16 +221,16 @@ class VisualOdometry:
         new_xyz = np.array([result.atPoint3(_L(lid)) for lid in ids.tolist()]).reshape(-1, 3)
         # drop observations that remain outliers (whitened error without the robust loss)
         drop: dict[int, list[int]] = {}
-        sigma2 = c.ba_pixel_sigma**2
         for gi, pos, r, is_stereo in factor_index:
             e = graph.at(gi).unwhitenedError(result)
-            chi2 = float(e @ e) / sigma2
+            sigma = c.ba_pixel_sigma * float(kfs[pos].sigma[r])
+            chi2 = float(e @ e) / (sigma * sigma)
             if chi2 > (self._chi2_stereo if is_stereo else self._chi2_mono):
                 drop.setdefault(pos, []).append(r)
         for pos, rows in drop.items():
             kf = kfs[pos]
             m = np.ones(kf.ids.size, dtype=bool)
             m[rows] = False
-            kf.ids, kf.uv = kf.ids[m], kf.uv[m]
+            kf.ids, kf.uv, kf.sigma = kf.ids[m], kf.uv[m], kf.sigma[m]
         self.frontend.correct(kfs[-1].T_world_body, (ids, new_xyz))
         return kfs[-1].T_world_body
