@@ -281,3 +281,25 @@ def test_cli_convert_and_clear_errors(
     err = capsys.readouterr().err
     assert "/bogus" in err and "Traceback" not in err
     assert main(["convert", str(mh01_first5), "-o", str(tmp_path / "x.bag")]) == 2
+
+
+def test_rosbag2_metadata_record_opens_as_a_rosbag2_folder(
+    mh01_first5: Path, tmp_path: Path
+) -> None:
+    """The `rosbag2` metadata record is a bag's metadata.yaml: written next to the MCAP it makes a
+    rosbag2 folder that rosbags' rosbag2 Reader (which follows rosbag2's own rules) opens."""
+    from rosbags.rosbag2 import Reader
+
+    bag = tmp_path / "bag"
+    out = bag / "mh01.mcap"
+    convert(open_sequence(mh01_first5), out, ConvertOptions(progress=False))
+    with out.open("rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["rosbag2"]
+    info = yaml.safe_load(meta["serialized_metadata"])
+    (bag / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
+    with Reader(bag) as r:
+        counts = {c.topic: c.msgcount for c in r.connections}
+        assert counts["/cam0/image_raw"] == 5 and counts["/tf_static"] == 1
+        tf_static = next(c for c in r.connections if c.topic == "/tf_static")
+        assert tf_static.ext.offered_qos_profiles[0].durability.name == "TRANSIENT_LOCAL"
+        assert sum(1 for _ in r.messages()) == r.message_count == sum(counts.values())
