@@ -170,3 +170,40 @@ def test_run_on_a_bag_equals_run_on_the_asl_folder(v101_micro: Path, tmp_path: P
     # the ASL folder lists 4 cam1 rows without images; the bag has no messages for them
     assert set(b) <= set(a)
     assert all(a[t] == b[t] for t in b)
+
+
+@pytest.mark.slow
+def test_run_on_a_synthetic_sequence_packed_into_a_bag(tmp_path: Path) -> None:
+    """`eurocslam synth` output (moving, exact ground truth) packed into a ROS 2 MCAP bag: `run`
+    on the bag gives the trajectory `run` gives on the ASL folder, and it follows the ground
+    truth carried in the bag."""
+    synth = pytest.importorskip("eurocslam.dataset.synth")
+    from eurocslam.eval.align import umeyama
+
+    asl_dir = synth.synthesize(synth.SynthSpec.tiny(seed=3), tmp_path / "syn", workers=1)
+    asl = AslSequence(asl_dir)
+    bag = write_rosbag(asl, tmp_path / "syn_bag", "ros2-mcap")
+    calib = ["--calib", str(asl_dir / "mav0")]  # the synthetic rig travels beside the bag
+    for src, out, extra in ((bag, "bag", calib), (asl_dir, "asl", [])):
+        assert main(["run", str(src), "-o", str(tmp_path / out), "--no-progress", *extra]) == 0
+    rows = {}
+    for out in ("bag", "asl"):
+        text = (tmp_path / out / "trajectory_final.tum").read_text().splitlines()
+        rows[out] = [r for r in text if r and not r.startswith("#")]
+    assert rows["bag"] == rows["asl"]
+    assert len(rows["bag"]) >= 0.95 * len(asl.frame_times)
+    # the estimate follows the ground truth that travelled in the bag (SE(3)-aligned ATE)
+    seq = open_sequence(bag, quiet=True)
+    gt = seq.groundtruth
+    assert gt is not None
+    est = np.array([[float(v) for v in r.split()[:4]] for r in rows["bag"]])
+    t_est = np.round(est[:, 0] * 1e9).astype(np.int64)
+    hi = np.clip(np.searchsorted(gt.t_ns, t_est), 1, len(gt) - 1)
+    nearer_lo = np.abs(gt.t_ns[hi - 1] - t_est) < np.abs(gt.t_ns[hi] - t_est)
+    idx = np.where(nearer_lo, hi - 1, hi)
+    close = np.abs(gt.t_ns[idx] - t_est) < 1_000_000
+    assert close.all()
+    x, y = est[close, 1:4], gt.p[idx[close]]
+    r, t, _ = umeyama(x, y, with_scale=False)
+    ate = float(np.sqrt(np.mean(np.sum((x @ r.T + t - y) ** 2, axis=1))))
+    assert ate < 0.1, f"ATE {ate:.3f} m"
