@@ -22,6 +22,8 @@ SLAM_TOPICS = {
     "/slam/features",
     "/slam/state",
     "/slam/stats",
+    "/slam/position_error",
+    "/groundtruth/drone",
     "/slam/imu_bias",
     "/slam/velocity",
     "/slam/drone",
