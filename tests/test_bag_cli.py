@@ -206,4 +206,4 @@ def test_run_on_a_synthetic_sequence_packed_into_a_bag(tmp_path: Path) -> None:
     x, y = est[close, 1:4], gt.p[idx[close]]
     r, t, _ = umeyama(x, y, with_scale=False)
     ate = float(np.sqrt(np.mean(np.sum((x @ r.T + t - y) ** 2, axis=1))))
-    assert ate < 0.1, f"ATE {ate:.3f} m"
+    assert ate < 0.02, f"ATE {ate:.3f} m"  # 2.4 mm measured, over a 1.2 m path
