@@ -152,6 +152,19 @@ def test_doctor_on_convert_output(inputs: dict[str, Path], tmp_path: Path, capsy
     assert "calibration: c.mcap attachments" in text
 
 
+def test_run_on_a_bag_and_on_its_own_output(
+    inputs: dict[str, Path], micro: SimpleNamespace, tmp_path: Path
+) -> None:
+    """`run` straight on a ROS 1 bag (20 real frames); its run.mcap is itself a valid input."""
+    out = tmp_path / "run"
+    assert main(["run", str(inputs["ros1"]), "-o", str(out), "--no-progress"]) == 0
+    rows = (out / "trajectory_online.tum").read_text().splitlines()
+    assert len([r for r in rows if r and not r.startswith("#")]) == N
+    seq = open_sequence(out / "run.mcap", quiet=True)
+    assert seq.calib_source == "run.mcap attachments"
+    _same_as_micro(seq, micro)
+
+
 @pytest.mark.slow
 def test_run_on_a_bag_equals_run_on_the_asl_folder(v101_micro: Path, tmp_path: Path) -> None:
     """The SLAM does not care where frames come from: the 95 real micro pairs through a ROS 1
