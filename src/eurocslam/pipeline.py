@@ -113,6 +113,7 @@ class RunSummary:
     state_frames: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
     wall_s: float = 0.0
+    cpu_s: float = 0.0  # CPU time of the whole process (every thread) during the run
     duration_s: float = 0.0
 
     def add_time(self, stage: str, ms: float) -> None:
@@ -157,6 +158,7 @@ class RunSummary:
             "state_frames": self.state_frames,
             "duration_s": round(self.duration_s, 3),
             "wall_s": round(self.wall_s, 3),
+            "cpu_s": round(self.cpu_s, 3),
             "realtime_factor": round(self.realtime_factor, 3),
             "timings": {
                 s: {
@@ -177,7 +179,7 @@ class RunSummary:
             f"init: {', '.join(self.init_modes) or 'none'}; frames per state: "
             + ", ".join(f"{k} {v}" for k, v in sorted(self.state_frames.items())),
             f"{self.duration_s:.1f} s of data in {self.wall_s:.1f} s wall "
-            f"(real-time factor {self.realtime_factor:.2f})",
+            f"(real-time factor {self.realtime_factor:.2f}), {self.cpu_s:.1f} s CPU",
         ]
         for t, r in self.resets:
             out.append(f"  reset at t={t} ns: {r}")
@@ -281,6 +283,7 @@ class SlamPipeline:
         on_progress: object | None = None,
     ) -> RunResult:
         wall0 = time.perf_counter()
+        cpu0 = time.process_time()
         frames = self.source.frames(
             include_incomplete=True, t_start_ns=t_start_ns, t_end_ns=t_end_ns
         )
@@ -298,6 +301,7 @@ class SlamPipeline:
                 on_progress(out)
         self._finish_segment()
         self.summary.wall_s = time.perf_counter() - wall0
+        self.summary.cpu_s = time.process_time() - cpu0
         if t_first is not None and t_last is not None:
             self.summary.duration_s = (t_last - t_first) * 1e-9 + 1.0 / max(
                 self.source.rig.cam0.rate_hz, 1e-9
