@@ -368,3 +368,23 @@ def test_std_msgs_match_rosbags() -> None:
 def test_negative_and_pre_epoch_times_split_consistently() -> None:
     assert ros2.split_ns(1_500_000_001) == (1, 500_000_001)
     assert ros2.split_ns(0) == (0, 0)
+
+
+@pytest.mark.parametrize("frame", ["", "i", "imu0", "abcdefgh", "abcdefghi"])
+def test_batch_encoders_equal_single_messages(frame: str) -> None:
+    rng = np.random.default_rng(3)
+    t = T_NS + np.arange(20) * 5_000_000
+    g, a = rng.normal(size=(20, 3)), rng.normal(size=(20, 3))
+    gc, ac = np.eye(3) * 2.0, np.eye(3) * 3.0
+    imus = ros2.imu_batch(t, frame, g, a, gc, ac)
+    assert imus == [ros2.imu(int(t[i]), frame, g[i], a[i], gc, ac) for i in range(20)]
+    Ts = [_T(i) for i in range(20)]
+    p7 = ros2.poses7(np.stack(Ts))
+    poses = ros2.pose_stamped_batch(t, frame, p7)
+    assert poses == [ros2.pose_stamped(int(t[i]), frame, Ts[i]) for i in range(20)]
+    for child in ("", "gt_body", "abcdefg"):
+        tfs = ros2.tf_batch(t, frame, child, p7)
+        assert tfs == [
+            ros2.tf_message([ros2.Transform(int(t[i]), frame, child, Ts[i])]) for i in range(20)
+        ]
+        TS.deserialize_cdr(tfs[0], ros2.TF_MESSAGE)

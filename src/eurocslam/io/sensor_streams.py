@@ -60,6 +60,7 @@ GT_POSE = "/groundtruth/pose"
 GT_PATH = "/groundtruth/path"
 LEICA = "/leica0"
 CAMS = ("cam0", "cam1")
+WINDOW_NS = 2_000_000_000  # high-rate streams are encoded in batches of at most this much time
 
 
 def image_topic(cam: str, mode: str) -> str:
@@ -292,71 +293,102 @@ class SensorStreams:
                 )
 
     def write_until(self, sink: Sink, t_ns: int) -> None:
-        """IMU, ground truth, path and leica messages with log time <= t_ns, merged in order."""
+        """IMU, ground truth, path and leica messages with log time <= t_ns, merged in order.
+        Encoded in vectorised batches of at most `WINDOW_NS` of data (bounded memory)."""
         self.write_static(sink)
         t_ns = min(int(t_ns), self._hi)
-        events: list[tuple[int, int, int]] = []  # (time, kind, index)
+        while True:
+            nxt = self._next_pending_ns()
+            if nxt is None or nxt > t_ns:
+                break
+            self._write_window(sink, min(t_ns, nxt + WINDOW_NS))
+        self._written_until = t_ns
+
+    def _next_pending_ns(self) -> int | None:
+        c = [
+            int(a[i])
+            for a, i in (
+                (self._imu_t, self._i_imu),
+                (self._gt_t, self._i_gt),
+                (self._le_t, self._i_le),
+            )
+            if i < a.size
+        ]
+        return min(c) if c else None
+
+    def _write_window(self, sink: Sink, t_ns: int) -> None:
+        i0, g0, l0 = self._i_imu, self._i_gt, self._i_le
         i1 = int(np.searchsorted(self._imu_t, t_ns, "right"))
-        events += [(int(self._imu_t[i]), 0, i) for i in range(self._i_imu, i1)]
-        self._i_imu = max(self._i_imu, i1)
         g1 = int(np.searchsorted(self._gt_t, t_ns, "right"))
-        events += [(int(self._gt_t[i]), 1, i) for i in range(self._i_gt, g1)]
-        self._i_gt = max(self._i_gt, g1)
         l1 = int(np.searchsorted(self._le_t, t_ns, "right"))
-        events += [(int(self._le_t[i]), 2, i) for i in range(self._i_le, l1)]
-        self._i_le = max(self._i_le, l1)
-        events.sort()
-        for t, kind, i in events:
+        self._i_imu, self._i_gt, self._i_le = max(i0, i1), max(g0, g1), max(l0, l1)
+        imu_msgs = (
+            ros2.imu_batch(
+                self._imu_t[i0:i1],
+                "imu0",
+                self._imu_g[i0:i1],
+                self._imu_a[i0:i1],
+                self.gyro_cov,
+                self.accel_cov,
+            )
+            if i1 > i0
+            else []
+        )
+        gt_t, gt_p = self._gt_t[g0:g1], self._gt_pose7[g0:g1]
+        pose_msgs = (
+            ros2.pose_stamped_batch(gt_t, FRAME_GT_WORLD, gt_p)
+            if g1 > g0 and GT_POSE in self.topics
+            else []
+        )
+        tf_msgs = (
+            ros2.tf_batch(gt_t, FRAME_GT_WORLD, FRAME_GT_BODY, gt_p)
+            if g1 > g0 and TF in self.topics
+            else []
+        )
+        # merge the three streams by time (stable: IMU, then ground truth, then leica)
+        times = np.concatenate([self._imu_t[i0:i1], gt_t, self._le_t[l0:l1]])
+        kinds = np.concatenate(
+            [np.zeros(i1 - i0, np.int8), np.ones(g1 - g0, np.int8), np.full(l1 - l0, 2, np.int8)]
+        )
+        local = np.concatenate([np.arange(i1 - i0), np.arange(g1 - g0), np.arange(l1 - l0)])
+        order = np.lexsort((kinds, times))
+        for t, kind, k in zip(
+            times[order].tolist(), kinds[order].tolist(), local[order].tolist(), strict=True
+        ):
             if kind == 0:
-                sink.write(
-                    IMU_TOPIC,
-                    ros2.IMU,
-                    t,
-                    ros2.imu(
-                        t, "imu0", self._imu_g[i], self._imu_a[i], self.gyro_cov, self.accel_cov
-                    ),
-                )
+                sink.write(IMU_TOPIC, ros2.IMU, t, imu_msgs[k])
             elif kind == 1:
-                self._write_gt(sink, t, i)
+                if pose_msgs:
+                    sink.write(GT_POSE, ros2.POSE_STAMPED, t, pose_msgs[k])
+                if tf_msgs:
+                    sink.write(TF, ros2.TF_MESSAGE, t, tf_msgs[k])
+                if GT_PATH in self.topics:
+                    self._path_step(sink, t, gt_p[k])
             else:
                 sink.write(
                     LEICA,
                     ros2.POINT_STAMPED,
                     t,
-                    ros2.point_stamped(t, FRAME_GT_WORLD, self._le_p[i]),
+                    ros2.point_stamped(t, FRAME_GT_WORLD, self._le_p[l0 + k]),
                 )
-        self._written_until = t_ns
 
-    def _write_gt(self, sink: Sink, t: int, i: int) -> None:
-        p7 = self._gt_pose7[i]
-        if GT_POSE in self.topics:
-            out = ros2.CdrWriter()
-            out.header(t, FRAME_GT_WORLD)
-            out.f64_fixed(p7, 7)
-            sink.write(GT_POSE, ros2.POSE_STAMPED, t, out.getvalue())
-        if TF in self.topics:
-            out = ros2.CdrWriter()
-            out.u32(1)
-            out.header(t, FRAME_GT_WORLD)
-            out.string(FRAME_GT_BODY)
-            out.f64_fixed(p7, 7)
-            sink.write(TF, ros2.TF_MESSAGE, t, out.getvalue())
-        if GT_PATH in self.topics:
-            if t >= self._next_path_pose_ns:
+    def _path_step(self, sink: Sink, t: int, p7: np.ndarray) -> None:
+        """Collect path poses at `gt_path_pose_period_ns`; publish at most once per period."""
+        if t >= self._next_path_pose_ns:
+            self._path_t.append(t)
+            self._path_p.append(p7)
+            self._next_path_pose_ns = t + self.opt.gt_path_pose_period_ns
+        if t >= self._next_path_ns:
+            if self._path_t[-1] != t:
                 self._path_t.append(t)
                 self._path_p.append(p7)
-                self._next_path_pose_ns = t + self.opt.gt_path_pose_period_ns
-            if t >= self._next_path_ns:  # strictly at most one Path per period
-                if self._path_t[-1] != t:
-                    self._path_t.append(t)
-                    self._path_p.append(p7)
-                sink.write(
-                    GT_PATH,
-                    ros2.PATH,
-                    t,
-                    ros2.path(t, FRAME_GT_WORLD, self._path_t, np.array(self._path_p)),
-                )
-                self._next_path_ns = t + self.opt.gt_path_period_ns
+            sink.write(
+                GT_PATH,
+                ros2.PATH,
+                t,
+                ros2.path(t, FRAME_GT_WORLD, self._path_t, np.array(self._path_p)),
+            )
+            self._next_path_ns = t + self.opt.gt_path_period_ns
 
     def finish(self, sink: Sink) -> None:
         """Write the remaining IMU / ground truth / leica messages up to the end."""
