@@ -254,6 +254,26 @@ def default_workers() -> int:
     return max(1, n)
 
 
+def _init_worker(spec: SynthSpec, stage: Path) -> None:
+    """Worker of a fresh (spawned) process: rebuild the scene from the spec (deterministic,
+    so the frames are the same as a forked worker's)."""
+    global _SCENE, _STAGE
+    cv2.setNumThreads(1)
+    _SCENE, _STAGE = Scene.build(spec), stage
+
+
+def _pool(scene: Scene, stage: Path, workers: int):  # type: ignore[no-untyped-def]
+    """A process pool sharing the scene. Forking shares the world's textures for free (OpenCV
+    is set to one thread in the parent first: reconfiguring it in a forked child deadlocks).
+    Where fork is unavailable, workers start fresh and rebuild the scene from the spec
+    (deterministic, so the frames are the same)."""
+    if "fork" in mp.get_all_start_methods():
+        return mp.get_context("fork").Pool(workers)
+    return mp.get_context("spawn").Pool(
+        workers, initializer=_init_worker, initargs=(scene.spec, stage)
+    )
+
+
 def render_all(scene: Scene, stage: Path, workers: int, show_progress: bool | None) -> float:
     """Render and write every frame; returns the CPU seconds spent rendering."""
     from eurocslam.progress import bar
@@ -263,28 +283,32 @@ def render_all(scene: Scene, stage: Path, workers: int, show_progress: bool | No
     n = scene.cam_t_ns.size
     chunks = [list(range(i, min(i + 4, n))) for i in range(0, n, 4)]
     cpu = 0.0
-    pb = bar(total=n, desc="synth: rendering", unit="pair", enabled=show_progress)
     # one OpenCV thread per process; set in the parent *before* forking (changing OpenCV's
     # thread pool inside a forked child deadlocks)
     old_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
+    pool = _pool(scene, stage, workers) if workers > 1 and n >= 8 else None
+    # the bar (and its monitor thread) only after the fork
+    pb = bar(total=n, desc="synth: rendering", unit="pair", enabled=show_progress)
     try:
-        if workers <= 1 or n < 8:
+        if pool is None:
             for ch in chunks:
                 done, c = _render_frames(ch)
                 cpu += c
                 pb.update(done)
         else:
-            ctx = mp.get_context("fork")
-            with ctx.Pool(workers) as pool:
-                for done, c in pool.imap_unordered(_render_frames, chunks):
-                    cpu += c
-                    pb.update(done)
+            for done, c in pool.imap_unordered(_render_frames, chunks):
+                cpu += c
+                pb.update(done)
+            pool.close()
     except OSError as e:
         from eurocslam.errors import OutputError
 
         raise OutputError(f"{stage}: cannot write images: {e}") from None
     finally:
+        if pool is not None:
+            pool.terminate()
+            pool.join()
         cv2.setNumThreads(old_threads)
         pb.close()
         _SCENE = _STAGE = None
