@@ -8,7 +8,7 @@ Tables:
    only, and the full frame (sensor effects + both PNGs written).
 2. A short sequence written with 1 and 2 worker processes (wall time per pair, speed-up), and
    the time a 180 s replica (3,600 pairs) would take, extrapolated; with --replica S, one real
-   measurement of an S-second replica of MH_04_difficult.
+   measurement of an S-second replica of MH_01_easy.
 3. Realism: ORB keypoints and stereo matches per frame on real V1_01 frames (from
    ../shared/data/euroc) and on rendered frames, with the same detector and matcher.
 
@@ -121,7 +121,7 @@ def main() -> int:
         type=float,
         default=0.0,
         metavar="S",
-        help="also write an S-second replica of MH_04_difficult (e.g. 180)",
+        help="also write an S-second replica of MH_01_easy (e.g. 180)",
     )
     args = ap.parse_args()
 
@@ -159,13 +159,13 @@ def main() -> int:
         )
 
     if args.replica > 0:
-        gt = SHARED / "groundtruth" / "MH_04_difficult.csv"
+        gt = SHARED / "groundtruth" / "MH_01_easy.txt"
         if not gt.exists():
             print(f"\n(replica skipped: {gt} not found)")
         else:
             spec = SynthSpec(trajectory=gt, duration_s=args.replica, seed=0)
             total, render, pairs = timed_synth(spec, 2)
-            print(f"\n## measured: {args.replica:g} s replica of MH_04_difficult, 2 workers\n")
+            print(f"\n## measured: {args.replica:g} s replica of MH_01_easy, 2 workers\n")
             print("| pairs | total s | render s | wall ms / pair |\n|---|---|---|---|")
             print(f"| {pairs} | {total:.1f} | {render:.1f} | {1e3 * render / pairs:.1f} |")
 
