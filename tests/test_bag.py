@@ -151,6 +151,19 @@ def test_frames_stream_without_holding_the_bag(container: str, bags: dict[str, P
     assert peak < 20e6, f"peak {peak / 1e6:.1f} MB while streaming"
 
 
+@pytest.mark.parametrize(("fmt", "compression"), [("ros1", "bz2"), ("ros1", "lz4"),
+                                                  ("ros2-db3", "zstd")])  # fmt: skip
+def test_compressed_bags(fmt: str, compression: str, tmp_path: Path) -> None:
+    mini = _mini_seq()
+    path = write_rosbag(mini, tmp_path / ("z.bag" if fmt == "ros1" else "z"), fmt,
+                        compression=compression)  # fmt: skip
+    seq = BagSequence(path)
+    frames = list(seq.frames())
+    assert [f.t_ns for f in frames] == mini.ts
+    np.testing.assert_array_equal(frames[5].left, mini.imgs[5][0])
+    np.testing.assert_array_equal(seq.imu.gyro, mini.imu.gyro)
+
+
 # ---- encodings ---------------------------------------------------------------------------------
 
 
@@ -176,6 +189,7 @@ def _raw_bag(
     encoding: str = "mono8",
     imu_type: str = "sensor_msgs/msg/Imu",
     cam_topics: tuple[str, str] = ("/cam0/image_raw", "/cam1/image_raw"),
+    short_data_at: int | None = None,
 ) -> Path:
     """A 3-frame ROS 1 bag written directly with rosbags, for the cases write_rosbag refuses."""
     from rosbags.rosbag1 import Writer
@@ -195,11 +209,35 @@ def _raw_bag(
                 header=hdr, height=480, width=752, encoding=encoding, is_bigendian=0, step=752,
                 data=np.zeros(480 * 752, np.uint8),
             )  # fmt: skip
-            for c in cams:
-                w.write(c, t, ts.serialize_ros1(img, "sensor_msgs/msg/Image"))
+            for k, c in enumerate(cams):
+                msg = img
+                if k == 0 and i == short_data_at:  # an interrupted copy: half the pixels
+                    msg = T["sensor_msgs/msg/Image"](
+                        header=hdr, height=480, width=752, encoding=encoding, is_bigendian=0,
+                        step=752, data=np.zeros(480 * 752 // 2, np.uint8),
+                    )  # fmt: skip
+                w.write(c, t, ts.serialize_ros1(msg, "sensor_msgs/msg/Image"))
             if imu_type == "std_msgs/msg/String":
                 w.write(imu, t, ts.serialize_ros1(T[imu_type](data="x"), imu_type))
+            else:
+                v3 = T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=9.81)
+                imu_msg = T[imu_type](
+                    header=hdr, orientation=T["geometry_msgs/msg/Quaternion"](x=0, y=0, z=0, w=1),
+                    orientation_covariance=np.zeros(9), angular_velocity=v3,
+                    angular_velocity_covariance=np.zeros(9), linear_acceleration=v3,
+                    linear_acceleration_covariance=np.zeros(9),
+                )  # fmt: skip
+                w.write(imu, t, ts.serialize_ros1(imu_msg, imu_type))
     return path
+
+
+def test_truncated_image_message_is_a_counted_skip(tmp_path: Path) -> None:
+    path = _raw_bag(tmp_path / "short.bag", short_data_at=1)
+    seq = BagSequence(path)
+    assert len(list(seq.frames())) == 2
+    assert seq.skips.counts == {"unreadable image message": 1}
+    frames = list(seq.frames(include_incomplete=True))
+    assert len(frames) == 3 and frames[1].left is None and frames[1].right is not None
 
 
 def test_unsupported_encoding_names_topic_and_encoding(tmp_path: Path) -> None:

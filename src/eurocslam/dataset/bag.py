@@ -1016,6 +1016,7 @@ def write_rosbag(
     max_frames: int | None = None,
     zero_header_stamps: bool = False,
     cam1_offset_ns: int = 0,
+    compression: str | None = None,
 ) -> Path:
     """Write a `SequenceSource` as a ROS 1 bag or a ROS 2 bag folder (sqlite3 or MCAP storage),
     with EuRoC's topic names: cam0/cam1 `sensor_msgs/Image` (`encoding` mono8, bgr8, rgb8 or
@@ -1023,10 +1024,11 @@ def write_rosbag(
     or as EuRoC's raw Vicon TransformStamped (`"vicon"`: the body pose moved to the marker
     frame), and Leica PointStamped on `/leica/position`. Messages in stamp order, log time =
     stamp (or header stamps all zero with `zero_header_stamps`); `cam1_offset_ns` shifts cam1's
-    stamps and log times (cameras without synchronised stamps). Returns the written path.
+    stamps and log times (cameras without synchronised stamps); `compression`: ROS 1 chunk
+    compression "bz2" or "lz4", ROS 2 per-file "zstd". Returns the written path.
     """
     from rosbags.rosbag1 import Writer as Writer1
-    from rosbags.rosbag2 import StoragePlugin
+    from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
     from rosbags.rosbag2 import Writer as Writer2
     from rosbags.typesys import Stores, get_typestore
 
@@ -1038,6 +1040,8 @@ def write_rosbag(
     out = Path(out)
     if out.exists():
         raise DatasetError(f"{out}: already exists")
+    if fmt == "ros1" and out.suffix != ".bag":
+        raise DatasetError(f"{out}: a ROS 1 bag's name must end in .bag")
     ros1 = fmt == "ros1"
     ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     ser = ts.serialize_ros1 if ros1 else ts.serialize_cdr
@@ -1144,9 +1148,17 @@ def write_rosbag(
     merged = heapq.merge(*streams, key=lambda x: (x[0], x[1]))
     if ros1:
         writer: Any = Writer1(out)
+        if compression is not None:
+            if compression not in ("bz2", "lz4"):
+                raise DatasetError(f"ROS 1 bag compression '{compression}' unknown (bz2, lz4)")
+            writer.set_compression(Writer1.CompressionFormat[compression.upper()])
     else:
         plugin = StoragePlugin.MCAP if fmt == "ros2-mcap" else StoragePlugin.SQLITE3
         writer = Writer2(out, version=9, storage_plugin=plugin)
+        if compression is not None:
+            if compression != "zstd":
+                raise DatasetError(f"ROS 2 bag compression '{compression}' unknown (zstd)")
+            writer.set_compression(CompressionMode.FILE, CompressionFormat.ZSTD)
     with writer:
         conns = [writer.add_connection(topic, typ, typestore=ts) for topic, typ in channels]
         for t, k, msg in merged:
