@@ -445,7 +445,11 @@ class BagSequence:
             if not self.calib_dir.is_dir():
                 raise CalibrationError(f"{self.calib_dir}: calibration folder not found")
             return load_rig(self.calib_dir), f"{self.calib_dir}"
-        texts = mcap_sensor_yaml_texts(self.path)
+        try:
+            texts = mcap_sensor_yaml_texts(self.path)
+        except DatasetError as e:  # e.g. an MCAP without a summary; the messages may be fine
+            self.notes.append(f"attachments not read ({e})")
+            texts = {}
         if texts:
             if not all(s in texts for s in ("cam0", "cam1", "imu0")):
                 raise CalibrationError(
