@@ -48,7 +48,7 @@ from eurocslam.dataset.types import SequenceSource, StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.frontend import FrameFeatures, StereoFrontend
 from eurocslam.frontend.types import FrontendResult, TrackingState
-from eurocslam.geometry import F64, inv_T, make_T
+from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
 
 # EuRoC mounting (body x up, body z forward): the visual-only world's initial attitude
 R_WORLD_BODY_MOUNT = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
@@ -461,7 +461,12 @@ class SlamPipeline:
         t = ff.t_ns
         hc = self.cfg.health
         pred = est.predict(t)
-        fr = self.frontend.track(ff, pred.T_world_body)
+        if self.use_imu:
+            fr = self.frontend.track(ff, pred.T_world_body)
+        else:
+            # visual-only: constant velocity from the last two poses (the frontend's own model)
+            pred = NavEstimate(t, self._constant_velocity(t), pred.v_world, pred.bg, pred.ba)
+            fr = self.frontend.track(ff, None)
         tracked = fr.T_world_body is not None and (
             fr.state == TrackingState.INIT or fr.n_tracked >= hc.min_tracked
         )
@@ -514,6 +519,21 @@ class SlamPipeline:
         self.state = PipelineState.LOST
         self.segment.records.append(_FrameRecord(t, T, T, est.k))
         return self._out(t, PipelineState.LOST, T, False, fr, est.state)
+
+    def _constant_velocity(self, t: int) -> F64:
+        """Pose at `t` extrapolated from the last two online poses of this segment."""
+        seg = self.segment.index
+        pts = [o for o in self._online[-2:] if o[2] == seg]
+        if not pts:
+            assert self.est is not None and self.est.state is not None
+            return self.est.state.T_world_body
+        if len(pts) == 1 or pts[1][0] <= pts[0][0]:
+            return pts[-1][1]
+        (ta, Ta, _), (tb, Tb, _) = pts
+        s = (t - tb) / (tb - ta)
+        d = inv_T(Ta) @ Tb
+        step = make_T(so3_exp(so3_log(d[:3, :3]) * s), d[:3, 3] * s)
+        return Tb @ step
 
     def _fail(
         self, t: int, reason: str, T_hint: F64 | None, fr: FrontendResult | None
