@@ -13,7 +13,7 @@ motion blur (average of sub-frame renders across the exposure).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -154,6 +154,21 @@ class CameraModel:
         if c0 >= c1 or r0 >= r1:
             return None
         return r0, r1, c0, c1
+
+
+_MODEL_CACHE: dict[tuple, CameraModel] = {}
+
+
+def camera_model(cam: CameraCalib) -> CameraModel:
+    """`CameraModel.build`, cached per intrinsics (the inverse distortion map takes ~0.4 s)."""
+    key = (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, tuple(cam.distortion))
+    model = _MODEL_CACHE.get(key)
+    if model is None:
+        if len(_MODEL_CACHE) > 8:
+            _MODEL_CACHE.clear()
+        model = _MODEL_CACHE[key] = CameraModel.build(cam)
+    # the extrinsics are not part of the model; keep the caller's calibration object
+    return model if model.calib is cam else replace(model, calib=cam)
 
 
 @dataclass(frozen=True)

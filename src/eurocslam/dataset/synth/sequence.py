@@ -20,7 +20,7 @@ from eurocslam.dataset.synth.imu import (
     real_imu_stream,
     simulate_imu,
 )
-from eurocslam.dataset.synth.render import CameraModel, cast_and_shade
+from eurocslam.dataset.synth.render import CameraModel, camera_model, cast_and_shade
 from eurocslam.dataset.synth.trajectory import (
     BUILTIN_T0_NS,
     Motion,
@@ -163,7 +163,7 @@ class Scene:
             raise DatasetError("the sequence is too short: fewer than 2 camera frames")
         path = motion.spline.positions((cam_t - motion.t0_ns) * 1e-9)
         world = build_world(path, spec.seed, floor_z=floor_z, marker=spec.marker)
-        models = (CameraModel.build(rig.cam0), CameraModel.build(rig.cam1))
+        models = (camera_model(rig.cam0), camera_model(rig.cam1))
         return cls(spec, rig, motion, world, models, cam_t, imu)
 
     # ---- rendering ------------------------------------------------------------------------
