@@ -279,8 +279,13 @@ class TopicStats:
     role: str
     topic: str
     msgtype: str
-    header_ns: list[int] = field(default_factory=list)
-    log_ns: list[int] = field(default_factory=list)
+    header_ns: list[int] | I64 = field(default_factory=list)  # lists while scanning,
+    log_ns: list[int] | I64 = field(default_factory=list)  # int64 arrays after `freeze`
+
+    def freeze(self) -> None:
+        """Turn the stamp lists into int64 arrays (a quarter of the memory)."""
+        self.header_ns = np.asarray(self.header_ns, dtype=np.int64)
+        self.log_ns = np.asarray(self.log_ns, dtype=np.int64)
 
     @property
     def count(self) -> int:
@@ -517,12 +522,12 @@ class BagSequence:
                         stamp = self._raw_stamp(raw, st.topic, log_ns)
                         if role not in self.image_info:
                             self._first_image(reader, conn, raw, stamp)
-                        st.header_ns.append(stamp)
-                        st.log_ns.append(int(log_ns))
+                        st.header_ns.append(stamp)  # type: ignore[union-attr]
+                        st.log_ns.append(int(log_ns))  # type: ignore[union-attr]
                         continue
                     stamp, vals = self._values(reader, conn, raw, log_ns, fast)
-                    st.header_ns.append(stamp)
-                    st.log_ns.append(int(log_ns))
+                    st.header_ns.append(stamp)  # type: ignore[union-attr]
+                    st.log_ns.append(int(log_ns))  # type: ignore[union-attr]
                     if role == "imu":
                         imu_t.append(stamp)
                         imu_v.append(vals)
@@ -534,6 +539,8 @@ class BagSequence:
                         le_v.append(vals)  # type: ignore[arg-type]
             finally:
                 pb.close()
+        for st in self.stats.values():
+            st.freeze()
         self.imu = self._build_imu(imu_t, imu_v)
         self.groundtruth = self._build_groundtruth(gt_t, gt_v)
         self.leica = self._build_leica(le_t, le_v)
@@ -717,7 +724,7 @@ class BagSequence:
         if t.size > 1 and np.any(np.diff(t) < 0):
             self.skips.add("out-of-order timestamps (sorted)", st.topic)
         out: dict[int, int] = {}
-        for ti, li in zip(t.tolist(), st.log_ns, strict=True):
+        for ti, li in zip(t.tolist(), st.log_array().tolist(), strict=True):
             if ti in out:
                 self.skips.add(f"duplicate {role} timestamp (dropped)", f"{st.topic}: {ti}")
                 continue
@@ -1205,7 +1212,8 @@ def check_bag_sequence(seq: BagSequence) -> list[BagFinding]:
             level = "info" if role == "leica" else "warning"
             add(level, f"{role}: no topic (looked for {', '.join(seq.topic_map.candidates(role))})")
             continue
-        span = (max(st.log_ns) - min(st.log_ns)) / 1e9 if st.count else 0.0
+        lt = st.log_array()
+        span = float(lt.max() - lt.min()) / 1e9 if st.count else 0.0
         add("info", f"{role}: {st.topic} [{st.msgtype}] {st.count} messages over {span:.1f} s")
         if st.count == 0:
             add("error" if role in REQUIRED_ROLES else "warning", f"{st.topic}: no messages")
