@@ -320,31 +320,46 @@ def _remap_subset(atlas: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray
 
 def _sample_trilinear(world: World, X: np.ndarray, Y: np.ndarray, foot: np.ndarray) -> np.ndarray:
     """Trilinear mip-mapped lookup at level log2(footprint), blended between its two
-    neighbours. X, Y are level-0 atlas coordinates of texel centres (remap convention)."""
-    # most pixels are magnified (footprint <= 1 texel): one full-frame bilinear remap at level
-    # 0 serves them; the others are redone per level
-    out = cv2.remap(world.atlas[0], X, Y, cv2.INTER_LINEAR).astype(F32)
-    ff = foot.reshape(-1)
-    rest = np.flatnonzero(ff > 1.0)
-    if rest.size == 0:
-        return out
+    neighbours. X, Y are level-0 atlas coordinates of texel centres (remap convention).
+
+    Levels that many pixels use are remapped over the whole frame (one vectorised call, reused
+    by the neighbouring level); rare levels only over their pixels."""
+    n = foot.size
+    lvl = np.log2(np.maximum(foot, F32(1.0)))
+    np.minimum(lvl, F32(MIP_LEVELS - 1 - 1e-3), out=lvl)
+    l0 = lvl.astype(np.int8)
+    counts = np.bincount(l0.reshape(-1), minlength=MIP_LEVELS)
+    full: dict[int, np.ndarray] = {}
+
+    def whole(lv: int) -> np.ndarray:
+        if lv not in full:
+            s0 = F32(1.0 / (1 << lv))
+            c0 = F32(0.5 / (1 << lv) - 0.5)
+            xs, ys = (X, Y) if lv == 0 else (X * s0 + c0, Y * s0 + c0)
+            full[lv] = cv2.remap(world.atlas[lv], xs, ys, cv2.INTER_LINEAR).astype(F32)
+        return full[lv]
+
+    out = np.empty(X.shape, F32)
     flat_out = out.reshape(-1)
-    lr = np.log2(ff[rest])
-    np.minimum(lr, F32(MIP_LEVELS - 1 - 1e-3), out=lr)
-    l0r = lr.astype(np.int8)
-    xr, yr = X.reshape(-1)[rest], Y.reshape(-1)[rest]
     for lv in range(MIP_LEVELS - 1):
-        sel = np.flatnonzero(l0r == lv)
-        if sel.size == 0:
+        cnt = int(counts[lv])
+        if cnt == 0:
             continue
-        xs, ys = xr[sel], yr[sel]
-        fr = lr[sel] - F32(lv)
-        # level-l texel centres: (X + 0.5) / 2^l - 0.5
+        if cnt > n // 5:
+            a, b = whole(lv), whole(lv + 1)
+            blend = a + (lvl - F32(lv)) * (b - a)
+            if cnt == n:
+                return blend
+            np.copyto(out, blend, where=l0 == lv)
+            continue
+        sel = np.flatnonzero(l0.reshape(-1) == lv)
+        xs, ys = X.reshape(-1)[sel], Y.reshape(-1)[sel]
+        fr = lvl.reshape(-1)[sel] - F32(lv)
         s0 = F32(1.0 / (1 << lv))
         c0 = F32(0.5 / (1 << lv) - 0.5)
         s1, c1 = F32(0.5) * s0, F32(0.25 / (1 << lv) - 0.5)
         a = _remap_subset(world.atlas[lv], xs * s0 + c0, ys * s0 + c0).astype(F32)
         b = _remap_subset(world.atlas[lv + 1], xs * s1 + c1, ys * s1 + c1).astype(F32)
         a += fr * (b - a)
-        flat_out[rest[sel]] = a
+        flat_out[sel] = a
     return out
