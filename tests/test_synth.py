@@ -318,3 +318,19 @@ def test_cli_writes_a_sequence(tmp_path: Path, capsys: pytest.CaptureFixture[str
     text = capsys.readouterr().out
     assert "wrote" in text and "eurocslam doctor" in text
     assert len(list((tmp_path / "s/mav0/cam1/data").glob("*.png"))) == 9
+
+
+def test_large_rooms_get_coarser_texels_not_stretched_textures() -> None:
+    from eurocslam.dataset.synth.world import MAX_TEX, build_world
+
+    path = np.array([[0.0, 0.0, 1.0], [30.0, 4.0, 1.5]])
+    w = build_world(path, 0)
+    assert w.texels_per_m < 200.0
+    assert int(w.tex_w.max()) <= MAX_TEX and int(w.tex_h.max()) <= MAX_TEX
+    # every face's texture covers the face at the world's single texel density
+    ext = np.stack([w.room_hi - w.room_lo, *(w.box_hi - w.box_lo)])
+    for f in range(w.n_faces):
+        obj, axis = divmod(f, 6)[0], w.face_axis[f]
+        sa, ta = [a for a in range(3) if a != axis]
+        assert w.tex_w[f] >= ext[obj, sa] * w.texels_per_m - 1e-6
+        assert w.tex_h[f] >= ext[obj, ta] * w.texels_per_m - 1e-6

@@ -162,6 +162,11 @@ class Scene:
         if cam_t.size < 2:
             raise DatasetError("the sequence is too short: fewer than 2 camera frames")
         path = motion.spline.positions((cam_t - motion.t0_ns) * 1e-9)
+        if spec.trajectory is not None:
+            # the world encloses the whole recorded flight, so every crop of a sequence flies
+            # through the same room
+            step = max(1, len(gt.p) // 4000)
+            path = np.vstack([path, gt.p[::step]])
         world = build_world(path, spec.seed, floor_z=floor_z, marker=spec.marker)
         models = (camera_model(rig.cam0), camera_model(rig.cam1))
         return cls(spec, rig, motion, world, models, cam_t, imu)

@@ -350,6 +350,7 @@ def build_world(
         off_x=off_x,
         off_y=off_y,
         atlas=atlas,
+        texels_per_m=float(k),
     )
 
 
