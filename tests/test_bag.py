@@ -99,6 +99,8 @@ def test_bag_reads_like_asl(
 ) -> None:
     path = bags[container]
     assert is_bag_path(path)
+    if path.is_dir():  # a ROS 2 bag folder may also be given by its metadata.yaml
+        assert open_sequence(path / "metadata.yaml", quiet=True).path == path
     seq = open_sequence(path, quiet=True)
     assert isinstance(seq, BagSequence)
     assert seq.stamp_source == "header stamp"

@@ -175,6 +175,8 @@ def is_bag_path(path: Path | str) -> bool:
     p = Path(path)
     if p.is_dir():
         return (p / "metadata.yaml").is_file()
+    if p.name == "metadata.yaml":  # a ROS 2 bag folder given by its metadata file
+        return p.is_file()
     return p.suffix.lower() in BAG_SUFFIXES
 
 
@@ -408,6 +410,8 @@ class BagSequence:
         show_progress: bool | None = None,
     ) -> None:
         self.path = Path(path)
+        if self.path.name == "metadata.yaml" and self.path.is_file():
+            self.path = self.path.parent
         if not self.path.exists():
             raise DatasetError(f"{self.path}: no such file or folder")
         if not is_bag_path(self.path):
@@ -435,6 +439,7 @@ class BagSequence:
         self.bag_topics: dict[str, tuple[str, int]] = {}  # topic -> (type, count)
         self.ros2 = False
         self._conn_role: dict[int, str] = {}
+        self._cam1_alias: dict[int, int] = {}  # cam1 stamp -> the cam0 stamp it pairs with
         self.rig, self.calib_source = self._resolve_calibration(rig)
         self.T_body_gtsensor: F64 = np.eye(4)
         self._scan(show_progress)
@@ -749,7 +754,7 @@ class BagSequence:
         """Pair cam1 stamps that match no cam0 stamp exactly with the nearest unmatched cam0
         stamp within min(5 ms, 0.2 frame periods): cameras without hardware-synchronised stamps,
         or log times (which always differ a little). The pair takes the cam0 stamp."""
-        self._cam1_alias: dict[int, int] = {}
+        self._cam1_alias = {}
         un1 = sorted(c1.keys() - c0.keys())
         un0 = np.array(sorted(c0.keys() - c1.keys()), dtype=np.int64)
         if not un1 or un0.size == 0:
