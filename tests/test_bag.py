@@ -496,3 +496,19 @@ def test_check_bag_reports_open_errors(tmp_path: Path) -> None:
     findings = check_bag(path)
     assert findings_exit_code(findings) == 2
     assert findings[0].level == "error" and "no topic for cam0" in findings[0].message
+
+
+def test_machine_hall_bag_with_leica(mh01_first5: Path, tmp_path: Path) -> None:
+    """MH_01's first 5 real pairs with its Leica positions (EuRoC's `/leica/position`)."""
+    asl = AslSequence(mh01_first5)
+    assert asl.leica is not None and len(asl.leica.t_ns) > 0
+    seq = BagSequence(write_rosbag(asl, tmp_path / "mh01.bag", "ros1"))
+    assert seq.stats["leica"].topic == "/leica/position"
+    assert seq.leica is not None
+    np.testing.assert_array_equal(seq.leica.t_ns, asl.leica.t_ns)
+    np.testing.assert_array_equal(seq.leica.p, asl.leica.p)
+    got, want = list(seq.frames()), list(asl.frames())
+    assert len(got) == len(want) == 5
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_array_equal(g.left, w.left)
+        np.testing.assert_array_equal(g.right, w.right)
