@@ -9,7 +9,7 @@ Tables:
 2. A short sequence written with 1 and 2 worker processes (wall time per pair, speed-up), and
    the time a 180 s replica (3,600 pairs) would take, extrapolated; with --replica S, one real
    measurement of an S-second replica of MH_01_easy.
-3. Realism: ORB keypoints and stereo matches per frame on real V1_01 frames (from
+3. Realism: FAST corners, ORB keypoints and stereo matches per frame on real V1_01 frames (from
    ../shared/data/euroc) and on rendered frames, with the same detector and matcher.
 
 The machine may be shared: compare ratios within one run, read medians.
@@ -77,6 +77,11 @@ def timed_synth(spec: SynthSpec, workers: int) -> tuple[float, float, int]:
         total = time.perf_counter() - t0
         s = json.loads((out / "synth.json").read_text())
     return total, s["render_wall_s"], s["frames"]
+
+
+def fast_corners(img: np.ndarray) -> int:
+    """FAST corners (threshold 20) at full resolution: how much fine detail an image has."""
+    return len(cv2.FastFeatureDetector_create(20).detect(img))
 
 
 def orb_stats(left: np.ndarray, right: np.ndarray, rig) -> tuple[int, int]:  # type: ignore[no-untyped-def]
@@ -177,29 +182,32 @@ def main() -> int:
     rows = []
     if real.exists():
         names = sorted((real / "cam0" / "data").glob("*.png"))[::10]
-        kp, mt = [], []
+        kp, mt, fc = [], [], []
         for p in names:
             right = real / "cam1" / "data" / p.name
             if not right.exists():
                 continue
-            a, b = orb_stats(cv2.imread(str(p), 0), cv2.imread(str(right), 0), scene.rig)
+            left_img = cv2.imread(str(p), 0)
+            a, b = orb_stats(left_img, cv2.imread(str(right), 0), scene.rig)
             kp.append(a)
             mt.append(b)
-        rows.append(("real V1_01 (drone on the floor)", kp, mt))
+            fc.append(fast_corners(left_img))
+        rows.append(("real V1_01 (drone on the floor)", kp, mt, fc))
     for label, sc in (
         ("synthetic, default realism", scene),
         ("synthetic, --ideal", Scene.build(SynthSpec(duration_s=30.0).ideal())),
     ):
-        kp, mt = [], []
+        kp, mt, fc = [], [], []
         for k in frames[::3]:
-            a, b = orb_stats(sc.image(k, 0)[0], sc.image(k, 1)[0], sc.rig)
+            left_img = sc.image(k, 0)[0]
+            a, b = orb_stats(left_img, sc.image(k, 1)[0], sc.rig)
             kp.append(a)
             mt.append(b)
-        rows.append((label, kp, mt))
-    for label, kp, mt in rows:
-        print(
-            f"| {label} | {len(kp)} | {statistics.median(kp):.0f} | {statistics.median(mt):.0f} |"
-        )
+            fc.append(fast_corners(left_img))
+        rows.append((label, kp, mt, fc))
+    med = statistics.median
+    for label, kp, mt, fc in rows:
+        print(f"| {label} | {len(kp)} | {med(fc):.0f} | {med(kp):.0f} | {med(mt):.0f} |")
     return 0
 
 
