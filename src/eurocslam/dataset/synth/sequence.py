@@ -99,7 +99,8 @@ class SynthSpec:
 
 @dataclass
 class Scene:
-    """Everything needed to render any frame of a spec (picklable-free; shared by fork)."""
+    """Everything needed to render any frame of a spec: motion, world, camera models, clock, IMU.
+    Forked rendering workers share it; spawned ones rebuild it from the spec."""
 
     spec: SynthSpec
     rig: StereoRig

@@ -20,7 +20,7 @@ import numpy as np
 from eurocslam.dataset.asl import read_numeric_csv
 from eurocslam.dataset.synth.spline import SplineTrajectory, fit_spline
 from eurocslam.errors import DatasetError
-from eurocslam.geometry import F64, rot_to_quat_wxyz
+from eurocslam.geometry import F64, quat_wxyz_to_rot, rot_to_quat_wxyz
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
 BUILTIN_T0_NS = 1_400_000_000_000_000_000  # a realistic epoch (2014-05-13), like EuRoC's
@@ -199,8 +199,6 @@ def motion_from_groundtruth(
     m = (ts >= 0) & (ts <= t_end)
     st = spline.evaluate(ts[m])
     dp = np.linalg.norm(st.p - gt.p[sel][m], axis=1)
-    from eurocslam.geometry import quat_wxyz_to_rot
-
     Rin = quat_wxyz_to_rot(gt.q_wxyz[sel][m])
     cosang = (np.einsum("nij,nij->n", st.R, Rin) - 1.0) / 2.0
     ang = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
