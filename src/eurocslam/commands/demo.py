@@ -109,14 +109,17 @@ def cached_sequence(spec, cache: Path, progress: bool | None = None) -> tuple[Pa
     """The sequence for `spec` in `cache`, synthesised unless an identical one is there.
     Returns (path, reused)."""
     from eurocslam.dataset.synth import synthesize
+    from eurocslam.dataset.synth.sequence import GENERATOR_REVISION
 
     want = spec.to_json()
-    key = hashlib.sha256(json.dumps(want, sort_keys=True).encode()).hexdigest()[:10]
+    ident = json.dumps({"spec": want, "revision": GENERATOR_REVISION}, sort_keys=True)
+    key = hashlib.sha256(ident.encode()).hexdigest()[:10]
     path = cache / f"synth-{spec.duration_s:g}s-seed{spec.seed}-{key}"
     meta = path / "synth.json"
     if meta.is_file():
         try:
-            if json.loads(meta.read_text()).get("spec") == want:
+            have = json.loads(meta.read_text())
+            if have.get("spec") == want and have.get("generator_revision") == GENERATOR_REVISION:
                 return path, True
         except (OSError, ValueError):
             pass

@@ -32,6 +32,8 @@ from eurocslam.dataset.synth.world import Marker, World, build_world
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
 
+# bump whenever the same spec would give different files (caches compare it)
+GENERATOR_REVISION = 3
 DEFAULT_DURATION_S = 30.0
 TINY_DURATION_S = 2.0
 # sensor model constants (documented in the README)
@@ -375,6 +377,7 @@ def _summary(scene: Scene, st: Any, render_wall: float, cpu: float, workers: int
     n = int(scene.cam_t_ns.size)
     return {
         "generator": f"eurocslam {__version__} synth",
+        "generator_revision": GENERATOR_REVISION,
         "spec": scene.spec.to_json(),
         "motion": scene.motion.description,
         "fit_rms_m": scene.motion.fit_rms_m,
