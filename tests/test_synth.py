@@ -334,3 +334,28 @@ def test_large_rooms_get_coarser_texels_not_stretched_textures() -> None:
         sa, ta = [a for a in range(3) if a != axis]
         assert w.tex_w[f] >= ext[obj, sa] * w.texels_per_m - 1e-6
         assert w.tex_h[f] >= ext[obj, ta] * w.texels_per_m - 1e-6
+
+
+def test_demo_synthesises_once_then_reuses_the_cache(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from eurocslam.cli import main
+
+    argv = [
+        "demo",
+        "--duration",
+        "0.4",
+        "--cache",
+        str(tmp_path / "cache"),
+        "--out",
+        str(tmp_path / "out"),
+        "--steps",
+        "doctor",
+    ]
+    assert main(argv) == 0
+    first = capsys.readouterr().out
+    assert "made in" in first and "$ eurocslam doctor" in first
+    assert main(argv) == 0
+    assert "reused from the cache" in capsys.readouterr().out
+    assert len(list((tmp_path / "cache").iterdir())) == 1
+    assert main([*argv[:-1], "nonsense"]) == 2
