@@ -77,6 +77,7 @@ class FrontendConfig:
 
     # ---- execution -------------------------------------------------------------------------
     prefetch: bool = True  # decode+rectify+ORB of frame k+1 in a thread while k is tracked
+    prefetch_workers: int = 2  # extraction threads (frames k+1, k+2 in flight)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None, where: str = "frontend") -> FrontendConfig:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -155,33 +156,48 @@ class StereoFrontend:
         return self.track(self.extract(frame), T_world_body_pred)
 
     def stream(self, frames: Iterable[StereoFrame]) -> Iterator[tuple[StereoFrame, FrameFeatures]]:
-        """Yield (frame, features) with frame k+1 read, decoded and extracted in a worker thread
-        while the caller tracks frame k. Order is preserved; `prefetch=False` runs inline."""
+        """Yield (frame, features) in order, with the next frames read, decoded and extracted
+        by `prefetch_workers` threads while the caller tracks the current one (OpenCV releases
+        the GIL). `prefetch=False` runs everything inline."""
         it = iter(frames)
         if not self.config.prefetch:
             for fr in it:
                 yield fr, self.extract(fr)
             return
+        lock = threading.Lock()
+        counter = [0]
 
-        def job() -> tuple[StereoFrame, FrameFeatures] | None:
-            t0 = time.perf_counter()
-            try:
-                fr = next(it)
-            except StopIteration:
-                return None
-            dec = (time.perf_counter() - t0) * 1e3
+        def job() -> tuple[int, StereoFrame, FrameFeatures] | None:
+            with lock:  # the reader is not thread-safe: frames are taken one at a time
+                t0 = time.perf_counter()
+                try:
+                    fr = next(it)
+                except StopIteration:
+                    return None
+                dec = (time.perf_counter() - t0) * 1e3
+                k = counter[0]
+                counter[0] += 1
             ff = self.extract(fr)
             ff.timings_ms["decode"] = dec
-            return fr, ff
+            return k, fr, ff
 
-        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="frontend-extract") as pool:
-            fut: Future = pool.submit(job)
-            while True:
-                item = fut.result()
+        n = max(1, self.config.prefetch_workers)
+        with ThreadPoolExecutor(max_workers=n, thread_name_prefix="frontend-extract") as pool:
+            pending: deque[Future] = deque(pool.submit(job) for _ in range(n))
+            ready: dict[int, tuple[StereoFrame, FrameFeatures]] = {}
+            want = 0
+            done = False
+            while pending:
+                item = pending.popleft().result()
                 if item is None:
-                    return
-                fut = pool.submit(job)
-                yield item
+                    done = True
+                else:
+                    ready[item[0]] = (item[1], item[2])
+                    if not done:
+                        pending.append(pool.submit(job))
+                while want in ready:
+                    yield ready.pop(want)
+                    want += 1
 
     def predict(self, t_ns: int) -> F64 | None:
         """Constant-velocity prediction of T_world_body at t_ns (None before the first pose)."""
