@@ -175,10 +175,9 @@ def main() -> int:
             print(f"| {pairs} | {total:.1f} | {render:.1f} | {1e3 * render / pairs:.1f} |")
 
     real = SHARED / "V1_01_easy_micro" / "mav0"
-    print("\n## realism: ORB (nfeatures 2000) and rectified stereo matches per frame\n")
-    print(
-        "| images | frames | ORB keypoints (median) | stereo matches (median) |\n|---|---|---|---|"
-    )
+    print("\n## realism per frame (medians)\n")
+    print("FAST-20: corners at full resolution; ORB: nfeatures 2000; matches: rectified stereo\n")
+    print("| images | frames | FAST-20 | ORB keypoints | stereo matches |\n|---|---|---|---|---|")
     rows = []
     if real.exists():
         names = sorted((real / "cam0" / "data").glob("*.png"))[::10]
