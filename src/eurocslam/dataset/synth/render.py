@@ -213,7 +213,8 @@ def cast_and_shade(
     R_wc = np.asarray(T_world_cam[:3, :3], dtype=np.float64)
     o = np.asarray(T_world_cam[:3, 3], dtype=np.float64)
     H, W = model.calib.height, model.calib.width
-    d = (R_wc.astype(F32) @ model.rays.reshape(3, -1)).reshape(3, H, W)
+    # einsum: single-threaded and faster than BLAS for a 3x3 times 3xN product
+    d = np.einsum("ij,jn->in", R_wc.astype(F32), model.rays.reshape(3, -1)).reshape(3, H, W)
     dk = d * F32(world.texels_per_m)
     with np.errstate(divide="ignore"):
         # +-inf where a ray is parallel to an axis: the slab tests below stay correct (the
