@@ -359,3 +359,53 @@ def test_demo_synthesises_once_then_reuses_the_cache(
     assert "reused from the cache" in capsys.readouterr().out
     assert len(list((tmp_path / "cache").iterdir())) == 1
     assert main([*argv[:-1], "nonsense"]) == 2
+
+
+def _write_asl_gt(path: Path, t_ns: np.ndarray, bg: np.ndarray) -> None:
+    n = t_ns.size
+    p = np.stack([np.linspace(0, 1, n), np.zeros(n), np.ones(n)], 1)
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    rows = np.hstack(
+        [p, q, np.zeros((n, 3)), np.tile(bg, (n, 1)), np.tile([0.1, 0.2, 0.3], (n, 1))]
+    )
+    body = "\n".join(
+        f"{t}," + ",".join(f"{x:.6f}" for x in r) for t, r in zip(t_ns, rows, strict=True)
+    )
+    path.write_text(
+        "#timestamp,px,py,pz,qw,qx,qy,qz,vx,vy,vz,bwx,bwy,bwz,bax,bay,baz\n" + body + "\n"
+    )
+
+
+def test_groundtruth_biases_and_gaps(tmp_path: Path) -> None:
+    from eurocslam.dataset.synth.trajectory import motion_from_groundtruth, read_groundtruth_file
+    from eurocslam.errors import DatasetError
+
+    t = 1_403_000_000_000_000_000 + 5_000_000 * np.arange(600, dtype=np.int64)
+    good = tmp_path / "gt.csv"
+    _write_asl_gt(good, t, np.array([0.01, -0.02, 0.03]))
+    gt = read_groundtruth_file(good)
+    assert gt.bg is not None and gt.ba is not None
+    np.testing.assert_allclose(gt.bg[0], [0.01, -0.02, 0.03])
+    np.testing.assert_allclose(gt.ba[0], [0.1, 0.2, 0.3])
+    m = motion_from_groundtruth(gt)
+    assert m.t0_ns == t[0] and m.bias_source is not None
+    gap = tmp_path / "gap.csv"
+    _write_asl_gt(gap, np.concatenate([t[:300], t[300:] + 2_000_000_000]), np.zeros(3))
+    with pytest.raises(DatasetError, match=r"gap.csv: gap of 2\.0"):
+        motion_from_groundtruth(read_groundtruth_file(gap))
+    # the crop around the gap is fine
+    motion_from_groundtruth(read_groundtruth_file(gap), start_s=0.0, end_s=1.4)
+
+
+def test_imu_must_be_the_body_frame(tmp_path: Path) -> None:
+    from eurocslam.dataset.calib import default_rig
+    from eurocslam.errors import DatasetError
+
+    texts = dict(default_rig().yaml_texts)
+    for name, text in texts.items():
+        (tmp_path / name).mkdir()
+        if name == "imu0":
+            text = text.replace("data: [1.0, 0.0, 0.0, 0.0,", "data: [1.0, 0.0, 0.0, 0.05,")
+        (tmp_path / name / "sensor.yaml").write_text(text)
+    with pytest.raises(DatasetError, match="T_BS must be the identity"):
+        Scene.build(SynthSpec(duration_s=0.5, calib=tmp_path))
