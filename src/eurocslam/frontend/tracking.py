@@ -133,7 +133,7 @@ def search_by_projection(
     max_hamming: int,
     ratio: float,
     taken: NDArray[np.bool_] | None = None,
-    k: int = 10,
+    k: int = 6,
 ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.int32]]:
     """Match projected landmarks (rows `lm_rows` of the projection) to keypoints nearby.
 
@@ -196,7 +196,7 @@ def optimize_pose(
     chi2_stereo: float,
     chi2_mono: float,
     rounds: int = 4,
-    iterations: int = 10,
+    iterations: int = 6,
 ) -> tuple[F64, NDArray[np.bool_], F64]:
     """Motion-only Gauss-Newton on stereo (uL, uR, v) reprojection errors (uR NaN: mono).
 
