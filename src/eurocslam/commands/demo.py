@@ -28,6 +28,23 @@ class Step:
     argv: Callable[[Path, Path], list[str]]  # (sequence, out) -> command line
     outputs: Callable[[Path], list[tuple[str, Path]]]  # out -> (label, path) to print
     ok_codes: tuple[int, ...] = (0,)
+    headline: Callable[[Path], list[str]] | None = None  # out -> lines for the final summary
+
+
+def _eval_headline(out: Path) -> list[str]:
+    """ATE per trajectory from eval.json (the full report is in eval.md)."""
+    try:
+        data = json.loads((out / "eval" / "eval.json").read_text())
+        lines = []
+        for r in data["results"]:
+            ate = r["ate_trans_m"]["rmse"]
+            lines.append(
+                f"  {r['label']:18s} ATE {100 * ate:.1f} cm RMSE (SE(3)-aligned) over "
+                f"{r['reference_length_m']:.1f} m, {r['matched']}/{r['possible']} poses"
+            )
+        return lines
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
 
 
 STEPS: tuple[Step, ...] = (
@@ -60,11 +77,13 @@ STEPS: tuple[Step, ...] = (
             str(out / "eval" / "eval.json"),
             "--md",
             str(out / "eval" / "eval.md"),
+            "--quiet",
         ],
         lambda out: [
             ("accuracy report", out / "eval" / "eval.md"),
             ("plots", out / "eval"),
         ],
+        headline=_eval_headline,
     ),
 )
 
@@ -150,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     parser = build_parser()
     printed: list[tuple[str, Path]] = [("synthetic EuRoC sequence (ASL folder)", seq)]
+    headlines: list[str] = []
     for n in names:
         step = known[n]
         argv = step.argv(seq, out)
@@ -160,7 +180,13 @@ def run(args: argparse.Namespace) -> int:
         if code not in step.ok_codes:
             raise EurocSlamError(f"step '{step.name}' failed (exit {code}); see its output above")
         printed += step.outputs(out)
-    print(f"\neurocslam demo: done in {time.perf_counter() - t0:.0f} s. Outputs:")
+        if step.headline is not None:
+            headlines += step.headline(out)
+            print("\n".join(headlines), flush=True)
+    print(f"\neurocslam demo: done in {time.perf_counter() - t0:.0f} s.")
+    if headlines:
+        print("\n".join(headlines))
+    print("Outputs:")
     for label, path in printed:
         print(f"  {label:48s} {path}")
     return 0
