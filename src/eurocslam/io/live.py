@@ -33,6 +33,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import re
 import struct
 import threading
 import time
@@ -166,8 +167,15 @@ class _Relay:
     """Accepts `foxglove.sdk.v1` and `foxglove.websocket.v1` on (host, port) and relays each
     connection, frame by frame, to the SDK server on 127.0.0.1:upstream_port."""
 
-    def __init__(self, host: str, port: int, upstream_port: int) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        upstream_port: int,
+        on_unknown_channel: Callable[[int], None] | None = None,
+    ) -> None:
         self.host = host
+        self.on_unknown_channel = on_unknown_channel
         self.upstream = f"ws://127.0.0.1:{upstream_port}"
         self.port = 0
         self._clients = 0
@@ -256,7 +264,7 @@ class _Relay:
                 ping_interval=None,
             ) as upstream:
                 down = asyncio.ensure_future(self._pump(client, upstream))
-                up = asyncio.ensure_future(self._pump(upstream, client))
+                up = asyncio.ensure_future(self._pump(upstream, client, self._server_status))
                 _, pending = await asyncio.wait({down, up}, return_when=asyncio.FIRST_COMPLETED)
                 for t in pending:
                     t.cancel()
@@ -268,12 +276,29 @@ class _Relay:
                 self._clients -= 1
                 self._lock.notify_all()
 
+    def _server_status(self, frame: str) -> bool:
+        """Look at a text frame from the server; False drops it. foxglove-sdk sometimes refuses
+        a viewer's subscription to a channel it has just advertised ("Unknown channel ID: N",
+        when the channel was created while the viewer connected); the sink then re-creates the
+        channel, the viewer subscribes to the new one, and the error is not passed on."""
+        if '"status"' not in frame or "Unknown channel ID" not in frame:
+            return True
+        m = re.search(r"Unknown channel ID: (\d+)", frame)
+        if m is None or self.on_unknown_channel is None:
+            return True
+        threading.Thread(
+            target=self.on_unknown_channel, args=(int(m.group(1)),), daemon=True
+        ).start()
+        return False
+
     @staticmethod
-    async def _pump(src: Any, dst: Any) -> None:
+    async def _pump(src: Any, dst: Any, text_filter: Callable[[str], bool] | None = None) -> None:
         from websockets.exceptions import ConnectionClosed
 
         try:
             async for frame in src:
+                if text_filter is not None and isinstance(frame, str) and not text_filter(frame):
+                    continue
                 await dst.send(frame)
         except ConnectionClosed:
             pass
@@ -292,6 +317,9 @@ class _Topic:
     channel: foxglove.Channel
     msgtype: str
     latched: bool
+    schema: bytes
+    schema_encoding: str
+    message_encoding: str
     last: tuple[int, bytes] | None = None  # newest (log time, data) of a latched topic
 
 
@@ -330,6 +358,7 @@ class LiveSink:
         self._last_sub_change = time.monotonic()
         self._last_time_broadcast = -(1 << 62)
         self._closed = False
+        self.recreated_channels = 0  # channels re-created after a refused subscription
         self._ctx = foxglove.Context()
         self.playback_range_ns = playback_range_ns
         try:
@@ -345,7 +374,7 @@ class LiveSink:
         except Exception as e:  # the SDK raises its own error types
             raise OutputError(f"live view: the Foxglove server did not start: {e}") from None
         try:
-            self._relay = _Relay(host, port, self._server.port)
+            self._relay = _Relay(host, port, self._server.port, self._recreate_channel)
         except BaseException:
             self._server.stop()
             raise
@@ -406,7 +435,6 @@ class LiveSink:
     ) -> None:
         """Create the channel of `topic` now (so viewers see it before its first message).
         `schema` defaults to the ROS 2 humble definition of `msgtype` (`io.ros2.schema_text`)."""
-        import foxglove
 
         with self._lock:
             t = self._topics.get(topic)
@@ -426,14 +454,39 @@ class LiveSink:
                     raise OutputError(
                         f"no ROS 2 definition for message type {msgtype}: {e}"
                     ) from None
-            channel = foxglove.Channel(
-                topic,
-                schema=foxglove.Schema(name=msgtype, encoding=schema_encoding, data=schema),
-                message_encoding=message_encoding,
-                context=self._ctx,
-            )
+            channel = self._new_channel(topic, msgtype, schema, schema_encoding, message_encoding)
             is_latched = topic in self.latched_topics if latched is None else latched
-            self._topics[topic] = _Topic(channel, msgtype, is_latched)
+            self._topics[topic] = _Topic(
+                channel, msgtype, is_latched, schema, schema_encoding, message_encoding
+            )
+
+    def _new_channel(
+        self, topic: str, msgtype: str, schema: bytes, schema_encoding: str, message_encoding: str
+    ) -> foxglove.Channel:
+        import foxglove
+
+        return foxglove.Channel(
+            topic,
+            schema=foxglove.Schema(name=msgtype, encoding=schema_encoding, data=schema),
+            message_encoding=message_encoding,
+            context=self._ctx,
+        )
+
+    def _recreate_channel(self, channel_id: int) -> None:
+        """Replace a channel the server refused a subscription to (see `_Relay._server_status`):
+        viewers get an unadvertise and a new advertise for the topic and subscribe again."""
+        with self._lock:
+            if self._closed:
+                return
+            for t in self._topics.values():
+                if t.channel.id() == channel_id:
+                    topic = t.channel.topic()
+                    t.channel.close()  # first: the context holds one channel per topic
+                    t.channel = self._new_channel(
+                        topic, t.msgtype, t.schema, t.schema_encoding, t.message_encoding
+                    )
+                    self.recreated_channels += 1
+                    return
 
     def set_latched(self, topic: str, log_time_ns: int, msg: bytes) -> None:
         """Store the message a latched topic re-sends to every new subscriber (without sending
