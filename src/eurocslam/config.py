@@ -65,6 +65,8 @@ class BackendConfig:
     max_landmarks_per_keyframe: int = 150
     min_keyframe_interval_s: float = 0.2  # frontend keyframes closer than this are skipped
     max_keyframe_interval_s: float = 0.5  # force a keyframe after this long (bounds IMU spans)
+    correct_landmarks: bool = True  # push smoothed landmark positions back to the frontend
+    correct_whole_map: bool = True  # move the rest of the frontend map with the keyframe
     final_batch: bool = True  # one full Levenberg-Marquardt over each segment at the end
     final_batch_max_iterations: int = 30
 

@@ -496,7 +496,7 @@ class SlamPipeline:
                     verdict = check_step(pred.T_world_body, nav.T_world_body, hc)
                 if not verdict.ok:
                     return self._fail(t, verdict.reason, pred.T_world_body, fr)
-                self.frontend.correct(nav.T_world_body, est.active_landmarks())
+                self._correct_frontend(nav.T_world_body, fr.T_world_body)
                 seg = self.segment
                 seg.kf_T_chain[est.k] = nav.T_world_body
                 seg.records.append(_FrameRecord(t, nav.T_world_body, nav.T_world_body, est.k))
@@ -519,6 +519,21 @@ class SlamPipeline:
         self.state = PipelineState.LOST
         self.segment.records.append(_FrameRecord(t, T, T, est.k))
         return self._out(t, PipelineState.LOST, T, False, fr, est.state)
+
+    def _correct_frontend(self, T_new: F64, T_frontend: F64) -> None:
+        """Hand the smoothed keyframe pose and landmarks to the frontend. Landmarks the
+        smoother does not hold are moved rigidly with the keyframe's correction, so the
+        frontend's map stays in one frame (mixing corrected and uncorrected points would bias
+        its pose estimates between keyframes)."""
+        assert self.est is not None
+        m = self.frontend.map
+        if len(m) and self.cfg.backend.correct_whole_map:
+            D = T_new @ inv_T(T_frontend)
+            self.frontend.correct(T_new, (m.ids.copy(), m.xyz @ D[:3, :3].T + D[:3, 3]))
+        if self.cfg.backend.correct_landmarks:
+            self.frontend.correct(T_new, self.est.active_landmarks())
+        else:
+            self.frontend.correct(T_new)
 
     def _constant_velocity(self, t: int) -> F64:
         """Pose at `t` extrapolated from the last two online poses of this segment."""

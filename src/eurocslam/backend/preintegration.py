@@ -6,10 +6,10 @@ Noise densities from `imu0/sensor.yaml` are continuous-time; GTSAM's
 frame (`MakeSharedU`). The initial-bias covariance setter is gone from GTSAM 4.3: the estimator
 puts a prior on the first bias instead.
 
-`integrate(pim, imu, t0_ns, t1_ns)` integrates exactly the span [t0, t1]: each sample holds until
-the next one (zero-order hold), the first partial interval uses the sample at or before t0, so
-consecutive spans add up without double counting. Spans with an IMU dropout (a gap between
-samples longer than `max_gap_s`) are reported, so the caller can bridge them with vision.
+`integrate(pim, imu, t0_ns, t1_ns)` integrates exactly the span [t0, t1], interpolating linearly
+between samples (mid-point rule), so consecutive spans add up without double counting. Spans
+with an IMU dropout (a gap between samples longer than `max_gap_s`) are reported, so the caller
+can bridge them with vision.
 """
 
 from __future__ import annotations
@@ -60,36 +60,50 @@ class SpanInfo:
 def integrate(
     pim: gtsam.PreintegratedCombinedMeasurements, imu: ImuData, t0_ns: int, t1_ns: int
 ) -> SpanInfo:
-    """Add the IMU measurements covering [t0_ns, t1_ns] to `pim` (zero-order hold)."""
+    """Add the IMU measurements covering [t0_ns, t1_ns] to `pim`.
+
+    Samples are instantaneous readings; between two samples the reading is interpolated
+    linearly and each (clipped) interval is integrated with its mid-point value, the exact
+    mean of the interpolant. A zero-order hold (each sample held until the next) would leave a
+    systematic velocity error of dt/2 times the change of acceleration over the span.
+    """
     if t1_ns <= t0_ns:
         return SpanInfo(0, 0.0, True)
     t = imu.t_ns
-    # last sample at or before t0 (holds over the first partial interval)
+    # last sample at or before t0, first sample at or after t1
     i0 = int(np.searchsorted(t, t0_ns, side="right")) - 1
-    i1 = int(np.searchsorted(t, t1_ns, side="left"))  # first sample at or after t1
+    i1 = int(np.searchsorted(t, t1_ns, side="left"))
     covered = i0 >= 0 and i1 < t.size
     i0 = max(i0, 0)
-    i1 = min(i1, t.size)
-    if i0 >= t.size or i1 <= i0:
-        # no sample inside: nothing to integrate
+    i1 = min(i1, t.size - 1)
+    if t.size == 0 or i1 < i0 or (i1 == i0 and not covered and t[i0] > t1_ns):
         return SpanInfo(0, (t1_ns - t0_ns) * 1e-9, False)
-    idx = np.arange(i0, i1)
-    starts = np.maximum(t[idx], t0_ns)
+    ts = t[i0 : i1 + 1].astype(np.int64)
+    gyro = imu.gyro[i0 : i1 + 1]
+    acc = imu.accel[i0 : i1 + 1]
+    # interval k: [ts[k], ts[k+1]] clipped to [t0, t1]; a lone/last sample holds to t1
+    starts = np.maximum(ts, t0_ns)
     ends = np.empty_like(starts)
-    ends[:-1] = t[idx[1:]]
-    ends[-1] = t1_ns
+    ends[:-1] = ts[1:]
+    ends[-1] = max(int(ts[-1]), t1_ns)
     ends = np.minimum(ends, t1_ns)
     dts = (ends - starts) * 1e-9
-    gyro = imu.gyro
-    acc = imu.accel
-    for k, i in enumerate(idx.tolist()):
-        dt = float(dts[k])
-        if dt > 0.0:
-            pim.integrateMeasurement(acc[i], gyro[i], dt)
-    gaps = dts
-    if t[i0] > t0_ns:
-        gaps = np.append(gaps, (t[i0] - t0_ns) * 1e-9)
-    return SpanInfo(int(idx.size), float(np.max(gaps)) if gaps.size else 0.0, covered)
+    mids = 0.5 * (starts + ends)
+    seg = np.maximum(np.diff(ts).astype(np.float64), 1.0)
+    w = np.zeros(ts.size)
+    if ts.size > 1:
+        w[:-1] = np.clip((mids[:-1] - ts[:-1]) / seg, 0.0, 1.0)
+    nxt = np.minimum(np.arange(ts.size) + 1, ts.size - 1)
+    g_mid = gyro + w[:, None] * (gyro[nxt] - gyro)
+    a_mid = acc + w[:, None] * (acc[nxt] - acc)
+    for k in np.nonzero(dts > 0.0)[0].tolist():
+        pim.integrateMeasurement(a_mid[k], g_mid[k], float(dts[k]))
+    gaps = dts[dts > 0.0]
+    if ts[0] > t0_ns:
+        gaps = np.append(gaps, (ts[0] - t0_ns) * 1e-9)
+    if ts[-1] < t1_ns:
+        gaps = np.append(gaps, (t1_ns - ts[-1]) * 1e-9)
+    return SpanInfo(int(ts.size), float(np.max(gaps)) if gaps.size else 0.0, covered)
 
 
 def gap_in(imu: ImuData, t0_ns: int, t1_ns: int) -> float:

@@ -89,8 +89,8 @@ def imu_from_motion(
     seed: int = 0,
     pad_s: float = 1.0,
 ) -> ImuData:
-    """IMU samples from `-pad_s` to `duration + pad_s`. Each sample is the mean over the interval
-    that follows it (what a zero-order-hold integrator needs to be exact up to second order)."""
+    """Instantaneous IMU samples from `-pad_s` to `duration + pad_s` (as a real IMU and the
+    synthetic sequences deliver them)."""
     rng = np.random.default_rng(seed)
     dt = 1.0 / rate_hz
     ts = np.arange(-pad_s, motion.duration_s + pad_s, dt)
@@ -99,7 +99,7 @@ def imu_from_motion(
     gyro = np.empty((ts.size, 3))
     acc = np.empty((ts.size, 3))
     for i, t in enumerate(ts):
-        tm = t + 0.5 * dt
+        tm = t
         T0 = motion.pose(tm - h)
         T1 = motion.pose(tm)
         T2 = motion.pose(tm + h)
