@@ -12,15 +12,26 @@ T = TypeVar("T")
 
 
 def progress(
-    it: Iterable[T], *, total: int | None = None, desc: str = "", unit: str = "it",
+    it: Iterable[T],
+    *,
+    total: int | None = None,
+    desc: str = "",
+    unit: str = "it",
     enabled: bool | None = None,
 ) -> Iterator[T]:
     """Wrap an iterable in a progress bar. Disabled by default when stderr is not a TTY."""
     if enabled is None:
         enabled = sys.stderr.isatty()
     return iter(
-        tqdm(it, total=total, desc=desc, unit=unit, disable=not enabled, dynamic_ncols=True,
-             file=sys.stderr)
+        tqdm(
+            it,
+            total=total,
+            desc=desc,
+            unit=unit,
+            disable=not enabled,
+            dynamic_ncols=True,
+            file=sys.stderr,
+        )
     )
 
 
@@ -28,5 +39,6 @@ def bar(*, total: int | None, desc: str, unit: str = "it", enabled: bool | None 
     """A manual progress bar (`update`, `set_postfix`) for loops with live figures."""
     if enabled is None:
         enabled = sys.stderr.isatty()
-    return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, dynamic_ncols=True,
-                file=sys.stderr)
+    return tqdm(
+        total=total, desc=desc, unit=unit, disable=not enabled, dynamic_ncols=True, file=sys.stderr
+    )
