@@ -148,7 +148,24 @@ def test_error_messages_are_folded_to_one_line(
         raise DatasetError("x/sensor.yaml: not valid YAML:\n  in line 3\n    bad: [")
 
     fake = types.SimpleNamespace(NAME="fake", HELP="h", add_arguments=lambda p: None, run=run)
-    monkeypatch.setattr(cli, "_commands", lambda: [fake])
+    monkeypatch.setattr(cli, "_commands", lambda: ([fake], {}))
     assert cli.main(["fake"]) == 2
     err = capsys.readouterr().err
     assert err == "eurocslam fake: error: x/sensor.yaml: not valid YAML: in line 3 bad: [\n"
+
+
+def test_a_command_that_fails_to_import_is_reported_not_a_traceback(monkeypatch, capsys):
+    """A broken install (a missing dependency) leaves the rest of the CLI working and says so."""
+    from eurocslam import cli
+
+    real = cli._commands
+
+    def with_broken():
+        mods, broken = real()
+        mods = [m for m in mods if m.NAME != "synth"]
+        return mods, {**broken, "synth": "ModuleNotFoundError: No module named 'scipy'"}
+
+    monkeypatch.setattr(cli, "_commands", with_broken)
+    assert cli.main(["synth", "out"]) == 3
+    err = capsys.readouterr().err
+    assert "eurocslam synth: unavailable" in err and "scipy" in err and "Traceback" not in err

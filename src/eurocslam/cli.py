@@ -12,6 +12,7 @@ import importlib
 import pkgutil
 import sys
 import traceback
+from collections.abc import Callable
 from types import ModuleType
 
 from eurocslam import __version__
@@ -21,16 +22,34 @@ from eurocslam.errors import EurocSlamError
 _ORDER = ["demo", "run", "convert", "doctor", "synth", "eval", "bench", "play"]
 
 
-def _commands() -> list[ModuleType]:
+def _commands() -> tuple[list[ModuleType], dict[str, str]]:
+    """Command modules in --help order, and the commands that failed to import (a broken
+    install: a missing dependency) with the reason, so the rest of the CLI still works."""
     import eurocslam.commands as pkg
 
-    mods = [
-        importlib.import_module(f"eurocslam.commands.{m.name}")
-        for m in pkgutil.iter_modules(pkg.__path__)
-        if not m.name.startswith("_")
-    ]
+    mods: list[ModuleType] = []
+    broken: dict[str, str] = {}
+    for m in pkgutil.iter_modules(pkg.__path__):
+        if m.name.startswith("_"):
+            continue
+        try:
+            mods.append(importlib.import_module(f"eurocslam.commands.{m.name}"))
+        except ImportError as e:
+            broken[m.name] = f"{type(e).__name__}: {e}"
     rank = {n: i for i, n in enumerate(_ORDER)}
-    return sorted(mods, key=lambda m: (rank.get(m.NAME, len(rank)), m.NAME))
+    return sorted(mods, key=lambda m: (rank.get(m.NAME, len(rank)), m.NAME)), broken
+
+
+def _broken_command(name: str, reason: str) -> Callable[[argparse.Namespace], int]:
+    def run(_args: argparse.Namespace) -> int:
+        print(
+            f"eurocslam {name}: unavailable, this install is incomplete ({reason}); "
+            "reinstall with: pip install -e .",
+            file=sys.stderr,
+        )
+        return 3
+
+    return run
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -43,10 +62,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--debug", action="store_true", help="show full tracebacks for internal errors"
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for mod in _commands():
+    mods, broken = _commands()
+    for mod in mods:
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
+    for name, reason in broken.items():
+        p = sub.add_parser(name, help=f"(unavailable: {reason})", add_help=False)
+        p.add_argument("rest", nargs=argparse.REMAINDER)
+        p.set_defaults(_run=_broken_command(name, reason))
     return parser
 
 
