@@ -78,6 +78,9 @@ class FrontendConfig:
     # ---- execution -------------------------------------------------------------------------
     prefetch: bool = True  # decode+rectify+ORB of frame k+1 in a thread while k is tracked
     prefetch_workers: int = 2  # extraction threads (frames k+1, k+2 in flight)
+    # stereo matching is numpy (holds the GIL): in the tracking thread by default, so the
+    # workers run only GIL-free OpenCV work (decode, remap, ORB)
+    stereo_matching_in_workers: bool = False
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None, where: str = "frontend") -> FrontendConfig:

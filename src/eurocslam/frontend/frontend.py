@@ -65,6 +65,19 @@ def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:
 
 
 @dataclass(frozen=True)
+class _Partial:
+    """Extraction before stereo matching (what the worker threads produce)."""
+
+    t_ns: int
+    problem: str | None
+    left: Features
+    right: Features
+    left_img: U8 | None  # rectified images
+    right_img: U8 | None
+    timings_ms: dict[str, float]
+
+
+@dataclass(frozen=True)
 class FrameFeatures:
     """Output of the extraction stage for one stereo frame."""
 
@@ -167,7 +180,9 @@ class StereoFrontend:
         lock = threading.Lock()
         counter = [0]
 
-        def job() -> tuple[int, StereoFrame, FrameFeatures] | None:
+        in_workers = self.config.stereo_matching_in_workers
+
+        def job() -> tuple[int, StereoFrame, FrameFeatures | _Partial] | None:
             with lock:  # the reader is not thread-safe: frames are taken one at a time
                 t0 = time.perf_counter()
                 try:
@@ -177,14 +192,14 @@ class StereoFrontend:
                 dec = (time.perf_counter() - t0) * 1e3
                 k = counter[0]
                 counter[0] += 1
-            ff = self.extract(fr)
-            ff.timings_ms["decode"] = dec
-            return k, fr, ff
+            part = self._extract_images(fr)
+            part.timings_ms["decode"] = dec
+            return k, fr, (self._match(part) if in_workers else part)
 
         n = max(1, self.config.prefetch_workers)
         with ThreadPoolExecutor(max_workers=n, thread_name_prefix="frontend-extract") as pool:
             pending: deque[Future] = deque(pool.submit(job) for _ in range(n))
-            ready: dict[int, tuple[StereoFrame, FrameFeatures]] = {}
+            ready: dict[int, tuple[StereoFrame, FrameFeatures | _Partial]] = {}
             want = 0
             done = False
             while pending:
@@ -196,7 +211,8 @@ class StereoFrontend:
                     if not done:
                         pending.append(pool.submit(job))
                 while want in ready:
-                    yield ready.pop(want)
+                    fr, ff = ready.pop(want)
+                    yield fr, (ff if isinstance(ff, FrameFeatures) else self._match(ff))
                     want += 1
 
     def predict(self, t_ns: int) -> F64 | None:
@@ -251,6 +267,11 @@ class StereoFrontend:
         return ex
 
     def extract(self, frame: StereoFrame) -> FrameFeatures:
+        """Rectify, ORB on both images, stereo matching. Thread-safe."""
+        return self._match(self._extract_images(frame))
+
+    def _extract_images(self, frame: StereoFrame) -> _Partial:
+        """The OpenCV part of extraction (releases the GIL): rectification and ORB."""
         c = self.config
         timings: dict[str, float] = {}
         problem = image_problem(frame.left, c) or image_problem(frame.right, c)
@@ -261,7 +282,7 @@ class StereoFrontend:
             problem = "size"
         if problem is not None:
             e = Features.empty()
-            return FrameFeatures(frame.t_ns, problem, e, e, StereoMatches(*_no_stereo(0)), timings)
+            return _Partial(frame.t_ns, problem, e, e, None, None, timings)
         t0 = time.perf_counter()
         left = self._rectifier.rectify_left(frame.left)
         right = self._rectifier.rectify_right(frame.right)
@@ -270,12 +291,20 @@ class StereoFrontend:
         fl = ex.extract(left)
         fr = ex.extract(right)
         t2 = time.perf_counter()
-        sm = match_stereo(fl, fr, left, right, self.scale, c, g)
-        t3 = time.perf_counter()
-        timings.update(
-            rectify=(t1 - t0) * 1e3, orb=(t2 - t1) * 1e3, stereo_matching=(t3 - t2) * 1e3
+        timings.update(rectify=(t1 - t0) * 1e3, orb=(t2 - t1) * 1e3)
+        return _Partial(frame.t_ns, None, fl, fr, left, right, timings)
+
+    def _match(self, p: _Partial) -> FrameFeatures:
+        """The numpy part of extraction (holds the GIL): stereo matching."""
+        if p.problem is not None or p.left_img is None or p.right_img is None:
+            stereo = StereoMatches(*_no_stereo(len(p.left)))
+            return FrameFeatures(p.t_ns, p.problem, p.left, p.right, stereo, p.timings_ms)
+        t0 = time.perf_counter()
+        sm = match_stereo(
+            p.left, p.right, p.left_img, p.right_img, self.scale, self.config, self.rectified
         )
-        return FrameFeatures(frame.t_ns, None, fl, fr, sm, timings)
+        p.timings_ms["stereo_matching"] = (time.perf_counter() - t0) * 1e3
+        return FrameFeatures(p.t_ns, None, p.left, p.right, sm, p.timings_ms)
 
     # ---- stage 2: tracking (sequential) -----------------------------------------------------
     def track(self, ff: FrameFeatures, T_world_body_pred: F64 | None = None) -> FrontendResult:
