@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from eurocslam.commands._args import finite_float, positive_float
+
 NAME = "bench"
 HELP = "run + eval over many sequences (folders or a YAML list), N runs each, median table"
 
@@ -52,12 +54,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--max-diff",
-        type=float,
+        type=finite_float,
         default=0.01,
         metavar="S",
         help="association max time difference [s] (default 0.01)",
     )
-    p.add_argument("--timeout", type=float, metavar="S", help="kill a run after S seconds")
+    p.add_argument("--timeout", type=positive_float, metavar="S", help="kill a run after S seconds")
     p.add_argument(
         "--run-cmd",
         metavar="CMD",

@@ -17,6 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from eurocslam.commands._args import finite_float
+
 NAME = "demo"
 HELP = "synthesise a short sequence (cached) and run the main job on it: doctor, run, eval"
 
@@ -103,7 +105,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--duration",
-        type=float,
+        type=finite_float,
         default=30.0,
         metavar="S",
         help="length of the synthetic sequence in seconds (default 30)",

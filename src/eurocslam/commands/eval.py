@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from eurocslam.commands._args import finite_float
+
 NAME = "eval"
 HELP = "ATE/RPE of an estimate (TUM, EuRoC CSV, run folder, MCAP) against ground truth"
 
@@ -17,7 +19,7 @@ examples:
   eurocslam eval bag.mcap gt.tum --topic /tf --child-frame base_link
 
 The headline is ATE translation RMSE after SE(3) Umeyama alignment over the whole trajectory.
-RPE: per frame (evo's delta 1 frame) and over 10..50 %% of the ground-truth path length (rpg).
+RPE: per frame (evo's delta 1 frame) and over 10..50 % of the ground-truth path length (rpg).
 TUM time is seconds, EuRoC CSV time is nanoseconds; mix-ups are detected from the magnitudes.
 """
 
@@ -57,14 +59,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--max-diff",
-        type=float,
+        type=finite_float,
         default=0.01,
         metavar="S",
         help="max timestamp difference for association [s] (default 0.01, as evo)",
     )
     p.add_argument(
         "--offset",
-        type=float,
+        type=finite_float,
         default=0.0,
         metavar="S",
         help="time offset added to the estimate's stamps [s]",

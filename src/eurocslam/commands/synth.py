@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+from eurocslam.commands._args import finite_float
+
 NAME = "synth"
 HELP = "write a synthetic or semi-real EuRoC sequence (rendered stereo, IMU, ground truth)"
 
@@ -27,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("out", type=Path, metavar="OUT", help="output sequence folder (gets mav0/)")
     p.add_argument(
         "--duration",
-        type=float,
+        type=finite_float,
         default=None,
         metavar="S",
         help="length in seconds (built-in motion: default 30; with --trajectory: caps the crop)",
@@ -50,14 +52,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--start",
-        type=float,
+        type=finite_float,
         default=None,
         metavar="S",
         help="crop: start S seconds after the trajectory's first pose",
     )
     p.add_argument(
         "--end",
-        type=float,
+        type=finite_float,
         default=None,
         metavar="S",
         help="crop: end S seconds after the trajectory's first pose",
