@@ -42,7 +42,7 @@ from typing import Any
 
 import yaml
 
-from eurocslam.errors import ConfigError, EurocSlamError, EvalError
+from eurocslam.errors import ConfigError, EurocSlamError, EvalError, OutputError
 from eurocslam.eval.evaluate import EvalConfig, EvalResult, evaluate
 from eurocslam.eval.loaders import RUN_FINAL, RUN_ONLINE, groundtruth_csv_of
 from eurocslam.eval.report import markdown_report, to_json_dict, write_json, write_text
@@ -341,7 +341,12 @@ def run_bench(
 ) -> list[RunRecord]:
     """Run every sequence `runs` times (in parallel processes) and evaluate each run."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder (the output folder of bench)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"{out}: cannot create the output folder: {e.strerror or e}") from None
     cfg = cfg or EvalConfig()
     template = run_cmd or default_run_cmd()
     seq_paths = prepare_sequences(plan, out, progress)
