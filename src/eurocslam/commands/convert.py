@@ -4,17 +4,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+
+from eurocslam.commands._args import finite_float
 
 NAME = "convert"
 HELP = "convert an EuRoC sequence to a ROS 2 MCAP (images, camera_info, IMU, tf, ground truth)"
-
-
-def _time(value: str) -> float:
-    try:
-        v = float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{value}' is not a number") from None
-    return v
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,12 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--start",
-        type=_time,
+        type=finite_float,
         metavar="S",
         help="first time to keep: seconds from the sequence start, or an absolute timestamp in ns",
     )
     parser.add_argument(
-        "--end", type=_time, metavar="S", help="last time to keep (same units as --start)"
+        "--end", type=finite_float, metavar="S", help="last time to keep (same units as --start)"
     )
     parser.add_argument(
         "--topics",
@@ -69,6 +64,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="image decode/encode threads (default 2)",
     )
+    parser.add_argument(
+        "--force", action="store_true", help="replace OUT.mcap if it exists (default: refuse)"
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -80,6 +78,13 @@ def run(args: argparse.Namespace) -> int:
 
     if not str(args.output).endswith(".mcap"):
         raise OutputError(f"{args.output}: the output name must end in .mcap")
+    out = Path(args.output)
+    if out.is_dir():
+        raise OutputError(f"{out}: is a folder; give the output file name (e.g. {out}/out.mcap)")
+    if out.exists() and out.resolve() == Path(args.sequence).resolve():
+        raise OutputError(f"{out}: is the input; write the output to another file")
+    if out.exists() and not args.force:
+        raise OutputError(f"{out}: already exists (pass --force to replace it)")
     source = open_sequence(args.sequence, **source_options(args))
     opts = ConvertOptions(
         compression=args.compression,

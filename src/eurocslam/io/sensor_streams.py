@@ -181,9 +181,11 @@ class SensorStreams:
         firsts = [int(a[0]) for a in (self._imu_t, self._gt_t, self._le_t, ft) if a.size]
         lasts = [int(a[-1]) for a in (self._imu_t, self._gt_t, self._le_t, ft) if a.size]
         if not firsts:
+            lo_txt = "start" if opt.t_start_ns is None else opt.t_start_ns
+            hi_txt = "end" if opt.t_end_ns is None else opt.t_end_ns
             raise OutputError(
                 f"{source.name}: no data in the selected time range / topics "
-                f"({opt.t_start_ns} .. {opt.t_end_ns} ns)"
+                f"({lo_txt} .. {hi_txt} ns)"
             )
         self.t0_ns = min(firsts)
         self.t_last_ns = max(lasts)
