@@ -1,0 +1,96 @@
+"""Bad input at the command line, found in acceptance review: each case must end in one line
+naming the option/file and a non-zero exit, never an internal error, never lost output."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pytest
+
+from eurocslam.cli import main
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["convert", "SEQ", "-o", "OUT.mcap", "--start", "nan"], "--start"),
+        (["convert", "SEQ", "-o", "OUT.mcap", "--end", "inf"], "--end"),
+        (["eval", "a.tum", "b.tum", "--max-diff", "nan"], "--max-diff"),
+        (["eval", "a.tum", "b.tum", "--offset", "inf"], "--offset"),
+        (["bench", "SEQ", "-o", "OUT", "--max-diff", "nan"], "--max-diff"),
+        (["bench", "SEQ", "-o", "OUT", "--timeout", "-1"], "--timeout"),
+        (["bench", "SEQ", "-o", "OUT", "--timeout", "0"], "--timeout"),
+        (["synth", "OUT", "--duration", "nan"], "--duration"),
+        (["synth", "OUT", "--start", "-inf"], "--start"),
+        (["demo", "--duration", "inf"], "--duration"),
+    ],
+)
+def test_non_finite_numbers_are_usage_errors(
+    argv: list[str], option: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert f"argument {option}" in last and "internal error" not in err
+
+
+def test_finite_float_accepts_plain_numbers() -> None:
+    from eurocslam.commands._args import finite_float, positive_float
+
+    assert finite_float("-1.5") == -1.5 and finite_float("1e18") == 1e18
+    assert positive_float("0.25") == 0.25
+    for bad in ("x", "nan", "NaN", "inf", "-inf"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            finite_float(bad)
+
+
+def test_eval_help_shows_a_plain_percent(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["eval", "--help"])
+    out = capsys.readouterr().out
+    assert "10..50 % of the ground-truth path length" in out and "%%" not in out
+
+
+def test_bench_output_that_cannot_be_a_folder(
+    mh01_first5: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    afile = tmp_path / "afile"
+    afile.write_text("keep me")
+    assert main(["bench", str(mh01_first5), "-o", str(afile)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("eurocslam bench: error:") and str(afile) in err
+    assert len(err.splitlines()) == 1 and afile.read_text() == "keep me"
+    assert main(["bench", str(mh01_first5), "-o", str(afile / "sub")]) == 2
+    assert "cannot create the output folder" in capsys.readouterr().err
+
+
+def test_convert_keeps_an_existing_output(
+    mh01_first5: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "o.mcap"
+    out.write_bytes(b"earlier result")
+    assert main(["convert", str(mh01_first5), "-o", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "already exists" in err and "--force" in err and str(out) in err
+    assert out.read_bytes() == b"earlier result"
+    assert main(["convert", str(mh01_first5), "-o", str(out), "--no-progress", "--force"]) == 0
+    assert out.stat().st_size > 1000
+    capsys.readouterr()
+    # the input itself, even with --force, and a folder are refused
+    assert main(["convert", str(out), "-o", str(out), "--force"]) == 2
+    assert "is the input" in capsys.readouterr().err
+    (tmp_path / "d.mcap").mkdir()
+    assert main(["convert", str(mh01_first5), "-o", str(tmp_path / "d.mcap")]) == 2
+    assert "is a folder" in capsys.readouterr().err
+
+
+def test_convert_empty_time_range_message(
+    mh01_first5: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "o.mcap"
+    assert main(["convert", str(mh01_first5), "-o", str(out), "--start", "100"]) == 2
+    err = capsys.readouterr().err
+    assert "no data in the selected time range" in err and "None" not in err
