@@ -76,10 +76,21 @@ def test_run_live_streams_while_processing_and_writes_the_mcap(tmp_path: Path) -
             if m:
                 url = m.group(1)
         assert url, "run --live did not print its URL"
-        # stay until /slam/path_final (written at the very end) has come, then disconnect
-        got = run_session(
-            url, timeout=300, idle_timeout=60, until=lambda g: "/slam/path_final" in g.messages
-        )
+        # stay until /slam/path_final (written at the very end) has come, and 3 s longer (the
+        # server keeps the final state for the viewer), then disconnect: run exits
+        seen: list[float] = []
+        alive: list[bool] = []
+
+        def done(g) -> bool:  # type: ignore[no-untyped-def]
+            if "/slam/path_final" in g.messages and not seen:
+                seen.append(time.monotonic())
+            if seen and time.monotonic() - seen[0] > 3.0:
+                alive.append(proc.poll() is None)
+                return True
+            return False
+
+        got = run_session(url, timeout=300, idle_timeout=60, until=done)
+        assert alive == [True]  # the run was over and still served the final state
         _, stderr = proc.communicate(timeout=60)
         assert proc.returncode == 0, stderr[-3000:]
     finally:

@@ -320,7 +320,8 @@ class _Topic:
     schema: bytes
     schema_encoding: str
     message_encoding: str
-    last: tuple[int, bytes] | None = None  # newest (log time, data) of a latched topic
+    last: tuple[int, bytes] | None = None  # newest (log time, data)
+    undelivered: bool = False  # `last` was logged while no viewer subscribed to the topic
 
 
 @dataclass
@@ -480,6 +481,7 @@ class LiveSink:
                 return
             for t in self._topics.values():
                 if t.channel.id() == channel_id:
+                    t.undelivered = t.last is not None
                     topic = t.channel.topic()
                     t.channel.close()  # first: the context holds one channel per topic
                     t.channel = self._new_channel(
@@ -517,8 +519,8 @@ class LiveSink:
                     f"live view: topic {topic} already has type {t.msgtype}, "
                     f"cannot publish {msgtype}"
                 )
-            if t.latched:
-                t.last = (t_ns, msg)
+            t.last = (t_ns, msg)
+            t.undelivered = not t.channel.has_sinks()
             # the viewer's clock first (<= 100 Hz): a viewer with the `time` capability stamps
             # what it receives with the last server time it got (0 before the first one)
             if abs(t_ns - self._last_time_broadcast) >= 10_000_000:
@@ -555,16 +557,35 @@ class LiveSink:
             timer = threading.Timer(delay, self._resend_latched, args=(channel_id,))
             timer.daemon = True
             timer.start()
+        # A topic's newest message that reached nobody (e.g. the first message of a topic that
+        # was just advertised, like the final path at the end of a run) goes to the new viewer.
+        timer = threading.Timer(_LATCH_RESEND_S[0], self._resend_undelivered, args=(channel_id,))
+        timer.daemon = True
+        timer.start()
+
+    def _topic_of(self, channel_id: int) -> _Topic | None:
+        for t in self._topics.values():
+            if t.channel.id() == channel_id:
+                return t
+        return None
 
     def _resend_latched(self, channel_id: int) -> None:
         with self._lock:
-            if self._closed:
+            t = self._topic_of(channel_id)
+            if self._closed or t is None or not t.latched or t.last is None:
                 return
-            for t in self._topics.values():
-                if t.latched and t.last is not None and t.channel.id() == channel_id:
-                    if self._last_time_broadcast < 0:  # nothing played yet: start the clock
-                        self._broadcast_time(t.last[0])
-                    t.channel.log(t.last[1], log_time=self._resend_time(t.last[0]))
+            if self._last_time_broadcast < 0:  # nothing played yet: start the clock
+                self._broadcast_time(t.last[0])
+            t.channel.log(t.last[1], log_time=self._resend_time(t.last[0]))
+            t.undelivered = False
+
+    def _resend_undelivered(self, channel_id: int) -> None:
+        with self._lock:
+            t = self._topic_of(channel_id)
+            if self._closed or t is None or t.latched or not t.undelivered or t.last is None:
+                return
+            t.channel.log(t.last[1], log_time=self._resend_time(t.last[0]))
+            t.undelivered = False
 
     def _resend_time(self, t_ns: int) -> int:
         """Log time of a re-sent latched message: now on the viewer's clock, never older (viewers
