@@ -15,13 +15,22 @@ recorded file (`layouts/eurocslam.json`).
   unchanged. Both today's Foxglove and the open-source viewers connect.
 - Latched topics (`/tf_static`, and channels whose MCAP QoS says transient-local): the newest
   message is kept and re-sent whenever a client subscribes, so a viewer that connects late still
-  gets the static transforms.
+  gets the static transforms. Any topic's newest message that reached no viewer (the first
+  message of a topic advertised a moment before, like `/slam/path_final` at the end of a run) is
+  sent to the next subscriber. Re-sent messages carry the current log time (viewers stamp what
+  they receive with the server clock and warn when data goes back in time).
+- foxglove-sdk 0.30 quirks handled here: it may call `on_subscribe` before the new subscriber
+  can receive on that channel (latched messages are sent again 0.3 s and 1.5 s later), and it
+  may refuse a viewer's subscription to a channel created while the viewer connected ("Unknown
+  channel ID"; the relay sees that status, the channel is re-created under a new id and the
+  viewer subscribes to it; the error is not passed on).
 - Time: the server has the `time` capability and broadcasts the data time, so the viewer's clock
   follows the data (EuRoC stamps), not the wall clock.
 - Playback control (`play` only, where the viewer supports it: today's Foxglove): the server
   advertises the file's time range; pause, resume, speed and seek requests act on the pacing
   clock and on the reader. Foxglove Studio 1.48 / Lichtblick have no such controls for
-  WebSocket sources; there `--rate` sets the speed.
+  WebSocket sources; there `--rate` sets the speed. A seek or a loop moves the viewer's clock
+  (back), which Foxglove treats as a seek: it drops what it holds (`restart_at`).
 - Clients: `n_clients` counts connected viewers (at the relay); `wait_for_client(timeout)`
   blocks until one is connected and subscribed.
 - Everything binds to 127.0.0.1 unless another host is given; `close()` stops the relay and the
