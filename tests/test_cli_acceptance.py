@@ -94,3 +94,20 @@ def test_convert_empty_time_range_message(
     assert main(["convert", str(mh01_first5), "-o", str(out), "--start", "100"]) == 2
     err = capsys.readouterr().err
     assert "no data in the selected time range" in err and "None" not in err
+
+
+def test_eval_unit_hint_names_the_ground_truth_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    est = tmp_path / "est.tum"
+    gt_s = tmp_path / "gt_seconds.csv"
+    lines = [f"{1.4e9 + 0.05 * k:.3f} {0.1 * k} {0.02 * k * k} 0 0 0 0 1" for k in range(20)]
+    est.write_text("\n".join(lines) + "\n")
+    gt_s.write_text("#timestamp,px,py,pz,qw,qx,qy,qz\n" + "\n".join(
+        f"{1.4e9 + 0.05 * k:.3f},{0.1 * k},{0.02 * k * k},0,1,0,0,0" for k in range(20)
+    ) + "\n")  # fmt: skip
+    assert main(["eval", str(est), str(gt_s), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "gt_seconds.csv:" in err and "pass --gt-time-unit s" in err
+    assert main(["eval", str(gt_s), str(est), "-q"]) == 2  # the same file as the estimate
+    assert "pass --time-unit s" in capsys.readouterr().err

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from eurocslam.errors import EvalError
+from eurocslam.errors import EurocSlamError, EvalError
 from eurocslam.io.trajectory_io import (
     TimeUnit,
     Trajectory,
@@ -372,7 +372,13 @@ def load_groundtruth(
         notes: list[str] = []
         t = read_mcap_trajectory(path, tp, child_frame, f"{path}:{tp}", notes)
         return Loaded(t, "ground truth", f"{path}:{tp}", notes)
-    t = read_trajectory(path, time_unit=time_unit, name=str(path))
+    try:
+        t = read_trajectory(path, time_unit=time_unit, name=str(path))
+    except EurocSlamError as e:  # the reader's hint names the estimate's option
+        msg = str(e)
+        if "pass --time-unit " not in msg:
+            raise
+        raise type(e)(msg.replace("pass --time-unit ", "pass --gt-time-unit ")) from None
     return Loaded(t, "ground truth", str(path), _notes(t))
 
 
