@@ -189,8 +189,8 @@ def main() -> int:
             print(f"{short:<6} FAILED: {vio.get('error')}")
             continue
         print(
-            f"{short:<6}{s.get('duration_s', 0):>6.1f}{fmt(vio['ate_final']):>9}"
-            f"{fmt(vio['ate_online']):>8}{fmt(vo_ate):>8}{better:>7}"
+            f"{short:<6}{s.get('duration_s', 0):>6.1f}{fmt(vio['ate_final'], '.4f'):>9}"
+            f"{fmt(vio['ate_online'], '.4f'):>8}{fmt(vo_ate, '.4f'):>8}{better:>7}"
             f"{100 * s.get('coverage', 0):>8.1f}{len(s.get('resets', [])):>7}"
             f"{','.join(s.get('init_modes', [])):>8}{s.get('realtime_factor', 0):>6.2f}"
             f"{s.get('cpu_s', 0) / max(s.get('duration_s', 1), 1e-9):>6.2f}"

@@ -457,7 +457,7 @@ class StereoInertialEstimator:
         return key_i
 
     # ---- final batch ---------------------------------------------------------------------------
-    def final_batch(self, max_iterations: int = 30) -> tuple[dict[int, F64], dict[int, F64]]:
+    def final_batch(self, max_iterations: int = 5) -> tuple[dict[int, F64], dict[int, F64]]:
         """Full Levenberg-Marquardt over every factor of the segment.
 
         Returns (keyframe index -> T_world_body, landmark key -> position). Falls back to the
@@ -476,6 +476,7 @@ class StereoInertialEstimator:
         try:
             params = gtsam.LevenbergMarquardtParams()
             params.setMaxIterations(max_iterations)
+            params.setRelativeErrorTol(1e-4)
             result = gtsam.LevenbergMarquardtOptimizer(graph, vals, params).optimize()
         except RuntimeError:
             return poses, lms
