@@ -456,7 +456,7 @@ def _start_play(mcap: Path, *extra: str) -> tuple[subprocess.Popen, str]:
 
 
 def test_play_command_stops_cleanly_on_ctrl_c(run_mcap: Path) -> None:
-    proc, url = _start_play(run_mcap, "--rate", "0.2", "--keep-serving")
+    proc, url = _start_play(run_mcap, "--rate", "0.2", "--keep-serving", "--no-wait")
     try:
         got = run_session(
             url, timeout=15, until=lambda g: len(g.messages.get("/slam/pose", [])) >= 2
@@ -473,7 +473,7 @@ def test_play_command_stops_cleanly_on_ctrl_c(run_mcap: Path) -> None:
 
 
 def test_play_command_exits_when_the_viewer_disconnects(run_mcap: Path) -> None:
-    proc, url = _start_play(run_mcap, "--rate", "0.2")
+    proc, url = _start_play(run_mcap, "--rate", "0.2", "--no-wait")
     try:
         got = run_session(
             url, timeout=15, until=lambda g: len(g.messages.get("/slam/pose", [])) >= 2

@@ -48,16 +48,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 class _ViewerWatch:
-    """True once every viewer has been gone for longer than the grace period."""
+    """True once a viewer has connected and every viewer has then been gone for longer than the
+    grace period."""
 
     def __init__(self, n_clients: object, grace_s: float = _GRACE_S) -> None:
         self._n = n_clients
         self._grace = grace_s
         self._gone_since: float | None = None
+        self._seen = False
 
     def __call__(self) -> bool:
         if self._n() > 0:  # type: ignore[operator]
             self._gone_since = None
+            self._seen = True
+            return False
+        if not self._seen:
             return False
         now = time.monotonic()
         if self._gone_since is None:
