@@ -19,6 +19,8 @@ from eurocslam.cli import main
         (["eval", "a.tum", "b.tum", "--max-diff", "nan"], "--max-diff"),
         (["eval", "a.tum", "b.tum", "--offset", "inf"], "--offset"),
         (["bench", "SEQ", "-o", "OUT", "--max-diff", "nan"], "--max-diff"),
+        (["bench", "SEQ", "-o", "OUT", "--max-diff", "-0.5"], "--max-diff"),
+        (["eval", "a.tum", "b.tum", "--max-diff", "-1"], "--max-diff"),
         (["bench", "SEQ", "-o", "OUT", "--timeout", "-1"], "--timeout"),
         (["bench", "SEQ", "-o", "OUT", "--timeout", "0"], "--timeout"),
         (["synth", "OUT", "--duration", "nan"], "--duration"),
@@ -111,3 +113,10 @@ def test_eval_unit_hint_names_the_ground_truth_option(
     assert "gt_seconds.csv:" in err and "pass --gt-time-unit s" in err
     assert main(["eval", str(gt_s), str(est), "-q"]) == 2  # the same file as the estimate
     assert "pass --time-unit s" in capsys.readouterr().err
+
+
+def test_shared_alignment_choices_match_the_evaluator() -> None:
+    from eurocslam.commands._args import ALIGN_MODES
+    from eurocslam.eval.align import ALIGN_MODES as EVAL_MODES
+
+    assert ALIGN_MODES == EVAL_MODES

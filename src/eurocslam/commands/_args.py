@@ -26,3 +26,43 @@ def positive_float(value: str) -> float:
     if v <= 0:
         raise argparse.ArgumentTypeError(f"'{value}' must be > 0")
     return v
+
+
+def non_negative_float(value: str) -> float:
+    """A finite number >= 0."""
+    v = finite_float(value)
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"'{value}' must be >= 0")
+    return v
+
+
+SEQUENCE_HELP = (
+    "sequence folder (containing mav0/) or its mav0/ folder; also a ROS 1 .bag, a ROS 2 bag "
+    "folder, .db3 or .mcap (e.g. the output of convert)"
+)
+
+
+def add_sequence_arguments(parser: argparse.ArgumentParser) -> None:
+    """The input SEQUENCE of a command that reads one (ASL folder or bag), with `--calib` and
+    `--topic` for bags."""
+    from eurocslam.dataset.bag import add_source_arguments
+
+    parser.add_argument("sequence", help=SEQUENCE_HELP)
+    add_source_arguments(parser)
+
+
+# eurocslam.eval.align.ALIGN_MODES (kept literal so that building the parser imports no numpy;
+# a test keeps the two equal)
+ALIGN_MODES = ("se3", "sim3", "posyaw", "origin", "none")
+
+
+def add_alignment_arguments(parser: argparse.ArgumentParser, align_help: str) -> None:
+    """`--align` and `--max-diff`, as `eval` and `bench` take them."""
+    parser.add_argument("--align", choices=ALIGN_MODES, default="se3", help=align_help)
+    parser.add_argument(
+        "--max-diff",
+        type=non_negative_float,
+        default=0.01,
+        metavar="S",
+        help="max timestamp difference for association [s] (default 0.01, as evo)",
+    )

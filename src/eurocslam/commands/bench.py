@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from eurocslam.commands._args import finite_float, positive_float
+from eurocslam.commands._args import add_alignment_arguments, positive_float
 
 NAME = "bench"
 HELP = "run + eval over many sequences (folders or a YAML list), N runs each, median table"
@@ -46,19 +46,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--jobs", type=int, metavar="J", help="runs in parallel processes (default: CPU count)"
     )
     p.add_argument("--no-imu", action="store_true", help="pass --no-imu to every run")
-    p.add_argument(
-        "--align",
-        choices=("se3", "sim3", "posyaw", "origin", "none"),
-        default="se3",
-        help="alignment for the table (default se3)",
-    )
-    p.add_argument(
-        "--max-diff",
-        type=finite_float,
-        default=0.01,
-        metavar="S",
-        help="association max time difference [s] (default 0.01)",
-    )
+    add_alignment_arguments(p, "alignment for the table (default se3; see eval --help)")
     p.add_argument("--timeout", type=positive_float, metavar="S", help="kill a run after S seconds")
     p.add_argument(
         "--run-cmd",

@@ -6,21 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from eurocslam.commands._args import finite_float
+from eurocslam.commands._args import add_sequence_arguments, finite_float
 
 NAME = "convert"
 HELP = "convert an EuRoC sequence to a ROS 2 MCAP (images, camera_info, IMU, tf, ground truth)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from eurocslam.dataset.bag import add_source_arguments
-
-    parser.add_argument(
-        "sequence",
-        help="sequence folder (containing mav0/) or its mav0/ folder; also a ROS 1 .bag, a "
-        "ROS 2 bag folder, .db3 or .mcap (e.g. the output of convert)",
-    )
-    add_source_arguments(parser)
+    add_sequence_arguments(parser)
     parser.add_argument(
         "-o",
         "--output",

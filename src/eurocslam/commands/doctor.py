@@ -7,18 +7,14 @@ import argparse
 import json
 import sys
 
+from eurocslam.commands._args import add_sequence_arguments
+
 NAME = "doctor"
 HELP = "check an EuRoC sequence folder (files, CSVs, timestamps, images, calibration) or a bag"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from eurocslam.dataset.bag import add_source_arguments
-
-    parser.add_argument(
-        "sequence",
-        help="sequence folder (containing mav0/) or its mav0/ folder; also a .bag, .db3, .mcap "
-        "or ROS 2 bag folder",
-    )
+    add_sequence_arguments(parser)
     parser.add_argument(
         "--full",
         action="store_true",
@@ -32,7 +28,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="images per camera to decode fully when not --full (default 24)",
     )
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
-    add_source_arguments(parser)
     parser.epilog = (
         "Exit codes: 0 no problem, 1 warnings only, 2 errors. Each finding names the file, "
         "line and key."

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from eurocslam.commands._args import finite_float
+from eurocslam.commands._args import add_alignment_arguments, finite_float
 
 NAME = "eval"
 HELP = "ATE/RPE of an estimate (TUM, EuRoC CSV, run folder, MCAP) against ground truth"
@@ -45,24 +45,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="both",
         help="for a run folder: final (smoothed), online (causal) or both (default)",
     )
-    p.add_argument(
-        "--align",
-        choices=("se3", "sim3", "posyaw", "origin", "none"),
-        default="se3",
-        help="alignment: se3 Umeyama (default), sim3, posyaw (4-DoF), origin (first pose), none",
+    add_alignment_arguments(
+        p, "alignment: se3 Umeyama (default), sim3, posyaw (4-DoF), origin (first pose), none"
     )
     p.add_argument(
         "--align-first",
         type=int,
         metavar="N",
         help="fit the alignment on the first N matched poses only",
-    )
-    p.add_argument(
-        "--max-diff",
-        type=finite_float,
-        default=0.01,
-        metavar="S",
-        help="max timestamp difference for association [s] (default 0.01, as evo)",
     )
     p.add_argument(
         "--offset",
@@ -125,8 +115,6 @@ def run(args: argparse.Namespace) -> int:
     )
     from eurocslam.eval.report import markdown_report, to_json_dict, write_json, write_text
 
-    if args.max_diff < 0:
-        raise EvalError(f"--max-diff must be >= 0, got {args.max_diff}")
     if args.delta < 1:
         raise EvalError(f"--delta must be >= 1 frame, got {args.delta}")
     if (
