@@ -61,6 +61,8 @@ DEFAULT_PORT = 8765
 LATCHED_TOPICS = frozenset({"/tf_static"})
 _MAX_LAG_S = 0.5  # when the producer falls this far behind the pacing clock, re-anchor it
 _LATCH_RESEND_S = (0.3, 1.5)  # latched messages go again this long after a subscription
+_OP_MESSAGE_DATA, _OP_TIME = b"\x01", b"\x02"  # server binary opcodes (ws-protocol)
+_MAX_HELD = 256  # message frames held per viewer until its clock starts
 
 
 def _require_live_deps() -> None:
@@ -273,7 +275,7 @@ class _Relay:
                 ping_interval=None,
             ) as upstream:
                 down = asyncio.ensure_future(self._pump(client, upstream))
-                up = asyncio.ensure_future(self._pump(upstream, client, self._server_status))
+                up = asyncio.ensure_future(self._pump_to_viewer(upstream, client))
                 _, pending = await asyncio.wait({down, up}, return_when=asyncio.FIRST_COMPLETED)
                 for t in pending:
                     t.cancel()
@@ -301,18 +303,46 @@ class _Relay:
         return False
 
     @staticmethod
-    async def _pump(src: Any, dst: Any, text_filter: Callable[[str], bool] | None = None) -> None:
+    async def _pump(src: Any, dst: Any) -> None:
         from websockets.exceptions import ConnectionClosed
 
         try:
             async for frame in src:
-                if text_filter is not None and isinstance(frame, str) and not text_filter(frame):
-                    continue
                 await dst.send(frame)
         except ConnectionClosed:
             pass
         finally:
             await dst.close()
+
+    async def _pump_to_viewer(self, server: Any, viewer: Any) -> None:
+        """Server -> viewer. Message data that overtakes the first `time` frame (the SDK queues
+        them separately) is held until that frame has gone out: a viewer stamps messages with
+        the last server time it got, 0 before the first, and would start its timeline at 1970."""
+        from websockets.exceptions import ConnectionClosed
+
+        held: list[bytes] = []
+        clock_started = False
+        try:
+            async for frame in server:
+                if isinstance(frame, str):
+                    if not self._server_status(frame):
+                        continue
+                elif not clock_started and frame[:1] == _OP_MESSAGE_DATA:
+                    held.append(frame)
+                    del held[:-_MAX_HELD]
+                    continue
+                elif frame[:1] == _OP_TIME:
+                    clock_started = True
+                    await viewer.send(frame)
+                    for f in held:
+                        await viewer.send(f)
+                    held.clear()
+                    continue
+                await viewer.send(frame)
+        except ConnectionClosed:
+            pass
+        finally:
+            await viewer.close()
 
     def close(self) -> None:
         if self._loop.is_running():
@@ -583,18 +613,23 @@ class LiveSink:
             t = self._topic_of(channel_id)
             if self._closed or t is None or not t.latched or t.last is None:
                 return
-            if self._last_time_broadcast < 0:  # nothing played yet: start the clock
-                self._broadcast_time(t.last[0])
-            t.channel.log(t.last[1], log_time=self._resend_time(t.last[0]))
-            t.undelivered = False
+            self._resend(t)
+
+    def _resend(self, t: _Topic) -> None:
+        """Log `t.last` again, at the viewer's current time, after a `time` frame (a new viewer
+        needs one before its first message; see `_Relay._pump_to_viewer`)."""
+        assert t.last is not None
+        now = self._resend_time(t.last[0])
+        self._broadcast_time(now)
+        t.channel.log(t.last[1], log_time=now)
+        t.undelivered = False
 
     def _resend_undelivered(self, channel_id: int) -> None:
         with self._lock:
             t = self._topic_of(channel_id)
             if self._closed or t is None or t.latched or not t.undelivered or t.last is None:
                 return
-            t.channel.log(t.last[1], log_time=self._resend_time(t.last[0]))
-            t.undelivered = False
+            self._resend(t)
 
     def _resend_time(self, t_ns: int) -> int:
         """Log time of a re-sent latched message: now on the viewer's clock, never older (viewers
