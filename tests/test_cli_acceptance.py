@@ -78,6 +78,9 @@ def test_convert_keeps_an_existing_output(
     err = capsys.readouterr().err.strip()
     assert "already exists" in err and "--force" in err and str(out) in err
     assert out.read_bytes() == b"earlier result"
+    # a bad input is named first, even when the output exists
+    assert main(["convert", str(tmp_path / "nope"), "-o", str(out)]) == 2
+    assert "nope: no such file" in capsys.readouterr().err
     assert main(["convert", str(mh01_first5), "-o", str(out), "--no-progress", "--force"]) == 0
     assert out.stat().st_size > 1000
     capsys.readouterr()

@@ -277,6 +277,7 @@ def test_cli_convert_and_clear_errors(
     assert main(["convert", str(tmp_path / "nope"), "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert "nope" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    out = tmp_path / "other.mcap"  # cli.mcap exists now: convert would refuse to replace it
     assert main(["convert", str(mh01_first5), "-o", str(out), "--topics", "/bogus"]) == 2
     err = capsys.readouterr().err
     assert "/bogus" in err and "Traceback" not in err

@@ -71,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not str(args.output).endswith(".mcap"):
         raise OutputError(f"{args.output}: the output name must end in .mcap")
+    source = open_sequence(args.sequence, **source_options(args))  # input errors first
     out = Path(args.output)
     if out.is_dir():
         raise OutputError(f"{out}: is a folder; give the output file name (e.g. {out}/out.mcap)")
@@ -78,7 +79,6 @@ def run(args: argparse.Namespace) -> int:
         raise OutputError(f"{out}: is the input; write the output to another file")
     if out.exists() and not args.force:
         raise OutputError(f"{out}: already exists (pass --force to replace it)")
-    source = open_sequence(args.sequence, **source_options(args))
     opts = ConvertOptions(
         compression=args.compression,
         images=args.images,
