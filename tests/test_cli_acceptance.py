@@ -123,3 +123,18 @@ def test_shared_alignment_choices_match_the_evaluator() -> None:
     from eurocslam.eval.align import ALIGN_MODES as EVAL_MODES
 
     assert ALIGN_MODES == EVAL_MODES
+
+
+def test_convert_summary_columns_line_up_with_long_topic_names(
+    mh01_first5: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "png.mcap"
+    assert main(["convert", str(mh01_first5), "-o", str(out), "--images", "png"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    head = lines[0]
+    rows = [ln for ln in lines[1:] if ln.startswith("/")]
+    assert any("/cam0/image_raw/compressed" in r for r in rows)
+    end = head.index("messages") + len("messages")
+    for r in rows:  # the count ends under the header, the type starts under 'type'
+        assert r[:end].rstrip()[-1].isdigit() and r[end] == " "
+        assert r[head.index("type")] != " " and r[head.index("type") - 1] == " "

@@ -123,9 +123,11 @@ class WriteSummary:
         return max(lasts) if lasts else None
 
     def lines(self) -> list[str]:
-        out = [f"{'topic':<24} {'type':<34} {'messages':>9} {'MB':>9}"]
+        wn = max([24, *(len(n) for n in self.topics)])
+        wt = max([34, *(len(s.msgtype) for s in self.topics.values())])
+        out = [f"{'topic':<{wn}} {'type':<{wt}} {'messages':>9} {'MB':>9}"]
         for name, s in sorted(self.topics.items()):
-            out.append(f"{name:<24} {s.msgtype:<34} {s.count:>9} {s.bytes / 1e6:>9.2f}")
+            out.append(f"{name:<{wn}} {s.msgtype:<{wt}} {s.count:>9} {s.bytes / 1e6:>9.2f}")
         span = 0.0
         if self.start_ns is not None and self.end_ns is not None:
             span = (self.end_ns - self.start_ns) / 1e9
