@@ -138,3 +138,30 @@ def test_convert_summary_columns_line_up_with_long_topic_names(
     for r in rows:  # the count ends under the header, the type starts under 'type'
         assert r[:end].rstrip()[-1].isdigit() and r[end] == " "
         assert r[head.index("type")] != " " and r[head.index("type") - 1] == " "
+
+
+def test_trajectories_with_a_byte_order_mark(tmp_path: Path) -> None:
+    """Windows editors and spreadsheets start files with a UTF-8 BOM; the ASL reader accepted it
+    but TUM/EuRoC CSV trajectories failed on their first line."""
+    from eurocslam.errors import EvalError
+    from eurocslam.io.trajectory_io import read_trajectory
+
+    bom = "\ufeff"
+    tum_lines = [f"{1.4e9 + 0.05 * k:.2f} {0.1 * k} 0 0 0 0 0 1" for k in range(5)]
+    for name, text in {
+        "hdr.tum": bom + "# timestamp tx ty tz qx qy qz qw\n" + "\n".join(tum_lines),
+        "plain.tum": bom + "\n".join(tum_lines),
+        "gt.csv": bom
+        + "#timestamp,px,py,pz,qw,qx,qy,qz\n"
+        + "\n".join(
+            f"{1400000000000000000 + 50000000 * k},{0.1 * k},0,0,1,0,0,0" for k in range(5)
+        ),
+    }.items():
+        p = tmp_path / name
+        p.write_text(text, encoding="utf-8")
+        t = read_trajectory(p)
+        assert len(t.t_ns) == 5 and t.t_ns[0] == 1400000000000000000, name
+    bad = tmp_path / "latin1.tum"
+    bad.write_bytes(("\n".join(tum_lines) + "\n# caf\xe9\n").encode("latin-1"))
+    with pytest.raises(EvalError, match=r"latin1.tum:6: not a text file"):
+        read_trajectory(bad)

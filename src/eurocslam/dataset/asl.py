@@ -34,6 +34,7 @@ from eurocslam.dataset.types import (
 )
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import normalize_quat
+from eurocslam.textfile import read_text
 
 if TYPE_CHECKING:
     from eurocslam.dataset.bag import BagSequence, TopicMap
@@ -67,21 +68,7 @@ class CsvTable:
 
 def read_text_file(path: Path) -> str:
     """Read a CSV as text (UTF-8, BOM tolerated); errors name the file."""
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise DatasetError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise DatasetError(f"{path}: is a folder, expected a file") from None
-    except OSError as e:
-        raise DatasetError(f"{path}: cannot read: {e.strerror or e}") from None
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        line = raw[: e.start].count(b"\n") + 1
-        raise DatasetError(
-            f"{path}:{line}: not a text file (byte {e.start} is not UTF-8)"
-        ) from None
+    return read_text(path, DatasetError)
 
 
 def _looks_like_seconds(tok: str) -> bool:

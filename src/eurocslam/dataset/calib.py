@@ -17,6 +17,7 @@ import yaml
 
 from eurocslam.errors import CalibrationError
 from eurocslam.geometry import F64, inv_T
+from eurocslam.textfile import read_text
 
 
 class _SensorYamlLoader(yaml.SafeLoader):
@@ -54,18 +55,7 @@ def load_sensor_yaml_text(text: str, path: Path | str) -> dict[str, Any]:
 
 def read_yaml_text(path: Path | str) -> str:
     """Read a sensor.yaml as text (UTF-8, BOM tolerated); errors name the file."""
-    try:
-        raw = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise CalibrationError(f"{path}: is a folder, expected a file") from None
-    except OSError as e:
-        raise CalibrationError(f"{path}: cannot read: {e.strerror or e}") from None
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        raise CalibrationError(f"{path}: not a text file (byte {e.start} is not UTF-8)") from None
+    return read_text(path, CalibrationError)
 
 
 def load_sensor_yaml(path: Path) -> dict[str, Any]:

@@ -57,6 +57,7 @@ from eurocslam.geometry import (
     wxyz_to_xyzw,
     xyzw_to_wxyz,
 )
+from eurocslam.textfile import read_text
 
 I64 = NDArray[np.int64]
 TimeUnit = Literal["auto", "s", "ns"]
@@ -233,16 +234,7 @@ class _Layout:
 
 
 def _read_lines(path: Path) -> list[str]:
-    try:
-        return path.read_text().splitlines()
-    except FileNotFoundError:
-        raise EvalError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise EvalError(f"{path}: is a folder, expected a trajectory file") from None
-    except UnicodeDecodeError:
-        raise EvalError(f"{path}: not a text file (TUM or EuRoC CSV expected)") from None
-    except OSError as e:
-        raise EvalError(f"{path}: cannot read: {e}") from None
+    return read_text(path, EvalError, "trajectory file (TUM or EuRoC CSV)").splitlines()
 
 
 def _split(line: str, sep: str | None) -> list[str]:
