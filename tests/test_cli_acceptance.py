@@ -54,6 +54,7 @@ def test_eval_help_shows_a_plain_percent(capsys: pytest.CaptureFixture[str]) -> 
         main(["eval", "--help"])
     out = capsys.readouterr().out
     assert "10..50 % of the ground-truth path length" in out and "%%" not in out
+    assert "[--child-frame FRAME]" in out and "CHILD_FRAME" not in out
 
 
 def test_bench_output_that_cannot_be_a_folder(

@@ -35,10 +35,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="EuRoC sequence folder, state_groundtruth_estimate0/data.csv, TUM, or MCAP "
         "(default: /groundtruth/pose of the estimate's MCAP)",
     )
-    p.add_argument("--topic", help="estimate topic in an MCAP (default /slam/pose)")
-    p.add_argument("--child-frame", help="child frame of the estimate when --topic is tf")
-    p.add_argument("--gt-topic", help="ground-truth topic in an MCAP (default /groundtruth/pose)")
-    p.add_argument("--gt-child-frame", help="child frame of the ground truth when it is tf")
+    p.add_argument(
+        "--topic", metavar="TOPIC", help="estimate topic in an MCAP (default /slam/pose)"
+    )
+    p.add_argument(
+        "--child-frame", metavar="FRAME", help="child frame of the estimate when --topic is tf"
+    )
+    p.add_argument(
+        "--gt-topic",
+        metavar="TOPIC",
+        help="ground-truth topic in an MCAP (default /groundtruth/pose)",
+    )
+    p.add_argument(
+        "--gt-child-frame", metavar="FRAME", help="child frame of the ground truth when it is tf"
+    )
     p.add_argument(
         "--which",
         choices=("final", "online", "both"),
