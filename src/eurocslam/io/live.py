@@ -63,6 +63,7 @@ _MAX_LAG_S = 0.5  # when the producer falls this far behind the pacing clock, re
 _LATCH_RESEND_S = (0.3, 1.5)  # latched messages go again this long after a subscription
 _OP_MESSAGE_DATA, _OP_TIME = b"\x01", b"\x02"  # server binary opcodes (ws-protocol)
 _MAX_HELD = 256  # message frames held per viewer until its clock starts
+_LEGACY_BINARY_OPS = (b"\x01", b"\x02", b"\x03", b"\x04")  # data, time, service, asset
 
 
 def _require_live_deps() -> None:
@@ -322,11 +323,16 @@ class _Relay:
 
         held: list[bytes] = []
         clock_started = False
+        # Viewers speaking the protocol's older name know the binary opcodes 1-4 only; Foxglove
+        # Studio 1.x treats any other (5: playback state) as an error and reconnects.
+        legacy = viewer.subprotocol == "foxglove.websocket.v1"
         try:
             async for frame in server:
                 if isinstance(frame, str):
                     if not self._server_status(frame):
                         continue
+                elif legacy and frame[:1] not in _LEGACY_BINARY_OPS:
+                    continue
                 elif not clock_started and frame[:1] == _OP_MESSAGE_DATA:
                     held.append(frame)
                     del held[:-_MAX_HELD]
