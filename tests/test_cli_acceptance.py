@@ -166,3 +166,31 @@ def test_trajectories_with_a_byte_order_mark(tmp_path: Path) -> None:
     bad.write_bytes(("\n".join(tum_lines) + "\n# caf\xe9\n").encode("latin-1"))
     with pytest.raises(EvalError, match=r"latin1.tum:6: not a text file"):
         read_trajectory(bad)
+
+
+def test_bench_keeps_finished_runs_on_ctrl_c(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    import eurocslam.eval.bench as bench
+
+    def fake_run(rec, seq, cmd, cfg, timeout_s):
+        if rec.sequence == "second":
+            raise KeyboardInterrupt
+        rec.returncode, rec.error = 1, "exit 1 (log: run.log)"
+        return rec
+
+    monkeypatch.setattr(bench, "_one_run", fake_run)
+    for name in ("first", "second"):
+        gt = tmp_path / name / "mav0" / "state_groundtruth_estimate0"
+        gt.mkdir(parents=True)
+        (gt / "data.csv").write_text("#timestamp,px,py,pz,qw,qx,qy,qz\n")
+    out = tmp_path / "out"
+    argv = ["bench", str(tmp_path / "first"), str(tmp_path / "second"), "-o", str(out)]
+    assert main([*argv, "--jobs", "1"]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted after 1 of 2 runs" in err and err.strip().endswith("interrupted")
+    data = json.loads((out / "bench.json").read_text())
+    assert [r["sequence"] for r in data["runs"]] == ["first"]
+    assert "first" in (out / "bench.md").read_text()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from eurocslam.commands._args import add_alignment_arguments, positive_float
@@ -62,6 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from eurocslam.errors import ConfigError
     from eurocslam.eval.bench import (
+        BenchInterrupted,
         parse_run_cmd,
         plan_from_args,
         run_bench,
@@ -79,7 +81,17 @@ def run(args: argparse.Namespace) -> int:
         plan = type(plan)(plan.sequences, plan.runs, [*plan.run_args, "--no-mcap"])
     cfg = EvalConfig(align=args.align, max_diff_s=args.max_diff)
     cmd = parse_run_cmd(args.run_cmd) if args.run_cmd else None
-    records = run_bench(plan, args.output, runs, args.jobs, cmd, args.no_imu, cfg, args.timeout)
+    try:
+        records = run_bench(plan, args.output, runs, args.jobs, cmd, args.no_imu, cfg, args.timeout)
+    except BenchInterrupted as e:  # keep what finished: a long bench is not lost to Ctrl-C
+        if e.records:
+            write_results(args.output, plan, e.records, cfg, runs)
+            print(
+                f"eurocslam bench: interrupted after {len(e.records)} of {e.planned} runs; "
+                f"their results: {args.output / 'bench.md'}, {args.output / 'bench.json'}",
+                file=sys.stderr,
+            )
+        raise
     md, _ = write_results(args.output, plan, records, cfg, runs)
     print(md)
     print(f"results: {args.output / 'bench.md'}, {args.output / 'bench.json'}")

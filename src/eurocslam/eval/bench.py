@@ -365,17 +365,37 @@ def run_bench(
         bar(total=len(recs), desc="bench runs", unit="run", enabled=progress) as b,
     ):
         futs = [pool.submit(_one_run, r, seq, cmd, cfg, timeout_s) for r, seq, cmd in recs]
-        for fut in as_completed(futs):
-            rec = fut.result()
-            done.append(rec)
-            b.update(1)
-            status = f"ATE {rec.final.ate_trans.rmse:.3f} m" if rec.ok and rec.final else rec.error
-            print(
-                f"eurocslam bench: {rec.sequence} run {rec.index}: {status} ({rec.wall_s:.1f} s)",
-                file=sys.stderr,
-            )
+        try:
+            for fut in as_completed(futs):
+                rec = fut.result()
+                done.append(rec)
+                b.update(1)
+                ok = rec.ok and rec.final
+                status = f"ATE {rec.final.ate_trans.rmse:.3f} m" if ok else rec.error
+                print(
+                    f"eurocslam bench: {rec.sequence} run {rec.index}: {status} "
+                    f"({rec.wall_s:.1f} s)",
+                    file=sys.stderr,
+                )
+        except KeyboardInterrupt:
+            for fut in futs:  # runs not started yet never start; running ones end with Ctrl-C
+                fut.cancel()
+            raise BenchInterrupted(_in_plan_order(plan, runs, done), len(recs)) from None
+    return _in_plan_order(plan, runs, done)
+
+
+class BenchInterrupted(KeyboardInterrupt):
+    """Ctrl-C during `run_bench`: carries the runs that had finished (in plan order)."""
+
+    def __init__(self, records: list[RunRecord], planned: int) -> None:
+        super().__init__(f"{len(records)} of {planned} runs finished")
+        self.records = records
+        self.planned = planned
+
+
+def _in_plan_order(plan: BenchPlan, runs: int, records: list[RunRecord]) -> list[RunRecord]:
     order = {(s.name, k): i for i, s in enumerate(plan.sequences) for k in range(runs)}
-    return sorted(done, key=lambda r: order[(r.sequence, r.index)])
+    return sorted(records, key=lambda r: order[(r.sequence, r.index)])
 
 
 def _median(vals: list[float | None]) -> float | None:
