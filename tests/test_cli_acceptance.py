@@ -194,3 +194,12 @@ def test_bench_keeps_finished_runs_on_ctrl_c(
     data = json.loads((out / "bench.json").read_text())
     assert [r["sequence"] for r in data["runs"]] == ["first"]
     assert "first" in (out / "bench.md").read_text()
+
+
+def test_calib_folder_may_be_the_sequence_folder(v101_micro: Path) -> None:
+    """`--calib V1_01_easy/` (the folder holding mav0/, as SEQUENCE takes it) works like
+    `--calib V1_01_easy/mav0/` for convert/run/doctor on bags and for synth."""
+    from eurocslam.dataset.calib import load_rig
+
+    a, b = load_rig(v101_micro), load_rig(v101_micro / "mav0")
+    assert (a.cam0.K == b.cam0.K).all() and (a.cam1.T_body_cam == b.cam1.T_body_cam).all()

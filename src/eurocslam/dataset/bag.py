@@ -39,6 +39,7 @@ import numpy as np
 
 from eurocslam.dataset.calib import (
     StereoRig,
+    calib_folder,
     default_rig,
     load_rig,
     load_sensor_yaml,
@@ -433,7 +434,7 @@ class BagSequence:
         self.topic_map: TopicMap = topics
         self.skips = SkipReport()
         self.notes: list[str] = []
-        self.calib_dir = Path(calib) if calib is not None else None
+        self.calib_dir = calib_folder(calib) if calib is not None else None
         self.stats: dict[str, TopicStats] = {}
         self.image_info: dict[str, ImageInfo] = {}
         self.bag_topics: dict[str, tuple[str, int]] = {}  # topic -> (type, count)

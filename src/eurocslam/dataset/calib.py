@@ -227,12 +227,21 @@ def rig_from_texts(texts: dict[str, str], origin: str) -> StereoRig:
     return rig
 
 
+def calib_folder(folder: Path | str) -> Path:
+    """The folder holding `cam0/`, `cam1/`, `imu0/`...: `folder` itself, or its `mav0/`."""
+    folder = Path(folder)
+    if not (folder / "cam0").exists() and (folder / "mav0").is_dir():
+        return folder / "mav0"
+    return folder
+
+
 def load_rig(folder: Path) -> StereoRig:
     """Load cam0, cam1, imu0 calibration from `folder/{cam0,cam1,imu0}/sensor.yaml`.
 
-    `folder` is a `mav0/` folder or any folder laid out the same way (a calibration folder).
+    `folder` is a `mav0/` folder or any folder laid out the same way (a calibration folder), or
+    a sequence folder holding `mav0/` (as every command accepts for SEQUENCE).
     """
-    folder = Path(folder)
+    folder = calib_folder(folder)
     texts: dict[str, str] = {}
     for s in ("cam0", "cam1", "imu0"):
         path = folder / s / "sensor.yaml"
