@@ -203,3 +203,29 @@ def test_calib_folder_may_be_the_sequence_folder(v101_micro: Path) -> None:
 
     a, b = load_rig(v101_micro), load_rig(v101_micro / "mav0")
     assert (a.cam0.K == b.cam0.K).all() and (a.cam1.T_body_cam == b.cam1.T_body_cam).all()
+
+
+def test_synth_staging_folder_is_never_someone_elses(tmp_path: Path) -> None:
+    """synth stages OUT.partial: a leftover of an interrupted synth is replaced, anything else
+    (a file, a folder with other content) is an error, not an internal error or a deletion."""
+    from eurocslam.dataset.synth.writer import prepare_folder
+    from eurocslam.errors import OutputError
+
+    out = tmp_path / "seq"
+    stage = tmp_path / "seq.partial"
+    stage.write_text("a file")
+    with pytest.raises(OutputError, match=r"seq.partial: exists and is not an unfinished"):
+        prepare_folder(out, overwrite=False)
+    stage.unlink()
+    (stage / "notes").mkdir(parents=True)
+    (stage / "notes" / "keep.txt").write_text("mine")
+    with pytest.raises(OutputError, match="move it away"):
+        prepare_folder(out, overwrite=True)
+    assert (stage / "notes" / "keep.txt").read_text() == "mine"
+    other = tmp_path / "other"
+    (tmp_path / "other.partial" / "mav0" / "cam0").mkdir(parents=True)  # interrupted synth
+    assert prepare_folder(other, overwrite=False) == tmp_path / "other.partial"
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    with pytest.raises(OutputError, match="afile: is a file"):
+        prepare_folder(afile, overwrite=True)

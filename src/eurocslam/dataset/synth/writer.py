@@ -67,7 +67,9 @@ def _rows(t_ns: np.ndarray, values: F64, fmt: str) -> str:
 def prepare_folder(out: Path, overwrite: bool) -> Path:
     """Create the staging folder `OUT.partial/mav0/...`; returns the staging root."""
     out = Path(out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: is a file; the output of synth is a folder")
+    if out.exists() and any(out.iterdir()):
         if not overwrite:
             raise OutputError(
                 f"{out}: already exists and is not empty (pass --force to replace it)"
@@ -78,8 +80,13 @@ def prepare_folder(out: Path, overwrite: bool) -> Path:
                 "synth.json); refusing to replace it"
             )
     stage = out.with_name(out.name + ".partial")
-    if stage.exists():
-        shutil.rmtree(stage)
+    if stage.is_dir() and {p.name for p in stage.iterdir()} <= {"mav0", "synth.json"}:
+        shutil.rmtree(stage)  # left by an interrupted synth
+    elif stage.exists():
+        raise OutputError(
+            f"{stage}: exists and is not an unfinished synthetic sequence; synth stages its "
+            "output there: move it away"
+        )
     try:
         for sub in ("cam0/data", "cam1/data", "imu0", "state_groundtruth_estimate0"):
             (stage / "mav0" / sub).mkdir(parents=True, exist_ok=True)
