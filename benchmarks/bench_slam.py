@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import subprocess
 import sys
@@ -84,7 +85,16 @@ def make_replica(short: str, cache: Path, duration: float | None, seed: int) -> 
         seed=seed,
     )
     t = time.perf_counter()
-    synthesize(spec, out, progress=False, overwrite=True)
+    # in a child process: rendering makes this process large, and a child started later
+    # inherits that high-water mark in ru_maxrss (it survives exec), spoiling the RSS column
+    ctx = multiprocessing.get_context("spawn")
+    proc = ctx.Process(
+        target=synthesize, args=(spec, out), kwargs={"progress": False, "overwrite": True}
+    )
+    proc.start()
+    proc.join()
+    if proc.exitcode != 0:
+        raise SystemExit(f"synthesising {tag} failed (exit {proc.exitcode})")
     print(f"  synth {tag}: {time.perf_counter() - t:.0f} s", file=sys.stderr, flush=True)
     return out
 
