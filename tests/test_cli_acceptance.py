@@ -229,3 +229,14 @@ def test_synth_staging_folder_is_never_someone_elses(tmp_path: Path) -> None:
     afile.write_text("x")
     with pytest.raises(OutputError, match="afile: is a file"):
         prepare_folder(afile, overwrite=True)
+
+
+def test_eval_error_names_both_inputs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    gt = tmp_path / "gt.tum"
+    est = tmp_path / "two.tum"
+    lines = [f"{1.4e9 + 0.05 * k:.2f} {0.1 * k} {0.01 * k * k} 0 0 0 0 1" for k in range(20)]
+    gt.write_text("\n".join(lines) + "\n")
+    est.write_text("\n".join(lines[:2]) + "\n")
+    assert main(["eval", str(est), str(gt), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "two.tum vs " in err and "gt.tum" in err and "at least 3 matched poses" in err

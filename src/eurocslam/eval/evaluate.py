@@ -256,7 +256,15 @@ def evaluate(
     for sid, part in parts:
         part = part.with_name(est.name or "estimate")
         if len(parts) == 1:
-            segs.append(_eval_segment(sid, ref, R_ref_all, part, cfg))
+            try:
+                segs.append(_eval_segment(sid, ref, R_ref_all, part, cfg))
+            except EvalError as e:  # name the inputs when the message does not
+                msg = str(e)
+                if (est.name or "") in msg and est.name:
+                    raise
+                raise EvalError(
+                    f"{est.name or 'estimate'} vs {ref.name or 'reference'}: {msg}"
+                ) from None
             continue
         try:
             segs.append(_eval_segment(sid, ref, R_ref_all, part, cfg))
