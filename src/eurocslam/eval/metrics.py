@@ -136,6 +136,21 @@ class RpeLength:
     trans_errors: F64  # per pair [m], for box plots and pooling
     rot_errors: F64  # per pair [deg]
 
+    @classmethod
+    def of(cls, fraction: float | None, length_m: float, e_t: F64, e_r: F64) -> RpeLength:
+        """Statistics of per-pair translation [m] and rotation [deg] errors at one length."""
+        L = float(length_m)
+        return cls(
+            fraction,
+            L,
+            Stats.of(e_t),
+            Stats.of(100.0 * e_t / L),
+            Stats.of(e_r),
+            Stats.of(e_r / L),
+            e_t,
+            e_r,
+        )
+
     def to_dict(self) -> dict[str, object]:
         return {
             "fraction": self.fraction,
@@ -165,30 +180,11 @@ def rpe_length(
         e_t, e_r = relative_errors(p_ref, R_ref, p_est, R_est, i, j)
     else:
         e_t, e_r = np.zeros(0), np.zeros(0)
-    return RpeLength(
-        fraction,
-        float(length_m),
-        Stats.of(e_t),
-        Stats.of(100.0 * e_t / length_m),
-        Stats.of(e_r),
-        Stats.of(e_r / length_m),
-        e_t,
-        e_r,
-    )
+    return RpeLength.of(fraction, length_m, e_t, e_r)
 
 
 def pool_lengths(parts: list[RpeLength]) -> RpeLength:
     """Pool RPE pairs of several segments evaluated at the same length."""
     e_t = np.concatenate([p.trans_errors for p in parts])
     e_r = np.concatenate([p.rot_errors for p in parts])
-    L = parts[0].length_m
-    return RpeLength(
-        parts[0].fraction,
-        L,
-        Stats.of(e_t),
-        Stats.of(100.0 * e_t / L),
-        Stats.of(e_r),
-        Stats.of(e_r / L),
-        e_t,
-        e_r,
-    )
+    return RpeLength.of(parts[0].fraction, parts[0].length_m, e_t, e_r)
