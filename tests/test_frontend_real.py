@@ -77,7 +77,7 @@ def test_rectified_stereo_matches_on_real_images(v101_frames) -> None:
 
 def test_static_visual_odometry_stays_put(v101_frames) -> None:
     seq, frames = v101_frames
-    vo = VisualOdometry(seq.rig, FrontendConfig())
+    vo = VisualOdometry(seq.rig, FrontendConfig(ba_enabled=True))
     poses, states, ids_seen = [], [], []
     for res, T in vo.run(frames):
         poses.append(T)

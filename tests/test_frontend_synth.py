@@ -52,7 +52,8 @@ def test_triangulated_points_agree_with_rendered_depth(tiny_scene: Scene) -> Non
     assert np.percentile(rel, 90) < 0.03
 
 
-def test_visual_odometry_ate_on_a_rendered_flight(tiny_sequence: Path) -> None:
+@pytest.mark.parametrize("ba", [False, True], ids=["tracking-only", "local-BA"])
+def test_visual_odometry_ate_on_a_rendered_flight(tiny_sequence: Path, ba: bool) -> None:
     """VO on the 2 s built-in flight (41 frames, 1.2 m of motion): SE(3)-aligned ATE.
 
     Bound 2 cm: measured 2.2 mm here (and 4.8 mm on a 10 s, 7.4 m built-in flight, 2.2 mm on a
@@ -60,7 +61,7 @@ def test_visual_odometry_ate_on_a_rendered_flight(tiny_sequence: Path) -> None:
     ten times tighter than the 0.10 m accuracy target.
     """
     seq = open_sequence(tiny_sequence)
-    vo = VisualOdometry(seq.rig, FrontendConfig())
+    vo = VisualOdometry(seq.rig, FrontendConfig(ba_enabled=ba))
     t, poses, states = [], [], []
     for res, T in vo.run(seq.frames()):
         t.append(res.t_ns)
@@ -79,6 +80,7 @@ def test_visual_odometry_ate_on_a_rendered_flight(tiny_sequence: Path) -> None:
     err = np.linalg.norm(p_est @ a.R.T + a.t - p_ref, axis=1)
     rmse = float(np.sqrt(np.mean(err**2)))
     assert rmse < 0.02, f"VO ATE {rmse * 1000:.1f} mm"
+    assert (len(vo.ba_ms) > 0) == ba
     # and the trajectory is not trivially short: the camera really moved
     assert np.linalg.norm(np.diff(p_ref, axis=0), axis=1).sum() > 0.5
 
