@@ -171,6 +171,16 @@ def run(args: argparse.Namespace) -> int:
             written += plot_result(r, args.plot, prefix_for(r.label))
         print(f"eurocslam eval: wrote {len(written)} plots to {args.plot}", file=sys.stderr)
     for r in results:
+        for seg in r.segments if r.config.align in ("se3", "sim3") else ():
+            sigma = seg.rotation_fit_sigma_deg()
+            if sigma > 1.0:
+                print(
+                    f"eurocslam eval: warning: {r.label}, segment {seg.segment}: the matched "
+                    f"positions barely leave a straight line, so the {r.config.align} fit's "
+                    f"rotation about it is uncertain (~{sigma:.1f} deg); ATE rotation is not "
+                    "meaningful (--align posyaw keeps gravity)",
+                    file=sys.stderr,
+                )
         for sid, why in r.skipped:
             print(f"eurocslam eval: warning: segment {sid} skipped: {why}", file=sys.stderr)
     return 0

@@ -98,6 +98,17 @@ class SegmentEval:
             "rpe_lengths": [x.to_dict() for x in self.lengths],
         }
 
+    def rotation_fit_sigma_deg(self) -> float:
+        """How well the positions pin down the alignment's rotation about the path's main
+        direction: ATE RMSE over the spread of the matched positions across that direction
+        (1-sigma for independent errors). Large on a (nearly) straight path: then an SE(3) or
+        Sim(3) fit may turn the estimate about the path and ATE rotation says little."""
+        c = self.p_ref - self.p_ref.mean(axis=0)
+        d = np.linalg.svd(c, compute_uv=False)
+        across = float(np.hypot(d[1], d[2]))
+        rmse = float(np.sqrt(np.mean(self.ate_t**2)))
+        return float(np.degrees(np.arctan2(rmse, across)))
+
 
 @dataclass(frozen=True)
 class EvalResult:
