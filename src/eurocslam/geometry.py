@@ -56,6 +56,7 @@ def rot_to_quat_wxyz(r: F64) -> F64:
     m = r.reshape(-1, 3, 3)
     d0, d1, d2 = m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]
     # four candidate solutions; pick the numerically largest denominator per matrix (Shepperd)
+    # fmt: off
     cand = np.stack(
         [
             np.stack([1 + d0 + d1 + d2, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0],
@@ -69,6 +70,7 @@ def rot_to_quat_wxyz(r: F64) -> F64:
         ],
         axis=1,
     )
+    # fmt: on
     key = np.stack([1 + d0 + d1 + d2, 1 + d0 - d1 - d2, 1 - d0 + d1 - d2, 1 - d0 - d1 + d2], axis=1)
     q = cand[np.arange(m.shape[0]), np.argmax(key, axis=1)]
     q /= np.linalg.norm(q, axis=1, keepdims=True)
