@@ -199,10 +199,13 @@ def _face_xy(
     """Atlas coordinates of hits at distance t on face f: (o + t d - org) k + off - 0.5."""
     sa, ta = ST_AXES[axis]
     k = world.texels_per_m
-    X = t * dk[sa]
-    X += F32((o[sa] - world.org_s[f]) * k + world.off_x[f] - 0.5)
-    Y = t * dk[ta]
-    Y += F32((o[ta] - world.org_t[f]) * k + world.off_y[f] - 0.5)
+    # rays that miss the face carry t = inf; inf * 0 for rays parallel to an axis gives NaN
+    # coordinates that the nearest-hit selection discards: no warning for them
+    with np.errstate(invalid="ignore"):
+        X = t * dk[sa]
+        X += F32((o[sa] - world.org_s[f]) * k + world.off_x[f] - 0.5)
+        Y = t * dk[ta]
+        Y += F32((o[ta] - world.org_t[f]) * k + world.off_y[f] - 0.5)
     return X, Y
 
 
