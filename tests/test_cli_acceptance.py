@@ -265,3 +265,29 @@ def test_eval_warns_when_the_path_is_too_straight_for_se3_rotation(
         assert ("barely leave a straight line" in err) == (name == "straight"), err
         assert main(["eval", str(est), str(gt), "-q", "--align", "posyaw"]) == 0
         assert "straight line" not in capsys.readouterr().err
+
+
+def test_run_and_play_reject_non_finite_options(capsys):
+    from eurocslam import cli
+
+    with pytest.raises(SystemExit) as e:
+        cli.main(["run", "SEQ", "-o", "OUT", "--start", "nan"])
+    assert e.value.code == 2
+    with pytest.raises(SystemExit) as e:
+        cli.main(["play", "x.mcap", "--live", "--rate", "nan"])
+    assert e.value.code == 2
+    assert "not a finite number" in capsys.readouterr().err
+
+
+def test_run_replaces_a_previous_runs_outputs(v101_micro, tmp_path, capsys):
+    """A second run into the same OUT (here without MCAP) leaves no stale run.mcap behind."""
+    from eurocslam import cli
+
+    out = tmp_path / "out"
+    assert cli.main(["run", str(v101_micro), "-o", str(out), "--end", "0.3", "--no-progress"]) == 0
+    assert (out / "run.mcap").is_file()
+    args = ["run", str(v101_micro), "-o", str(out), "--end", "0.3", "--no-mcap", "--no-progress"]
+    assert cli.main(args) == 0
+    assert not (out / "run.mcap").exists()
+    assert (out / "trajectory_final.tum").is_file()
+    assert "replacing the outputs of a previous run" in capsys.readouterr().err

@@ -76,6 +76,38 @@ def write_outputs(out_dir: Path, result: RunResult, cfg: RunConfig) -> None:
         raise OutputError(f"{out_dir}: cannot write: {e}") from None
 
 
+OUTPUT_NAMES = (
+    "run.mcap",
+    "run.mcap.partial",
+    "trajectory_online.tum",
+    "trajectory_online.csv",
+    "trajectory_final.tum",
+    "trajectory_final.csv",
+    "map.ply",
+    "config.yaml",
+    "summary.json",
+    "summary.txt",
+)
+
+
+def _remove_previous_outputs(out_dir: Path) -> None:
+    """A previous run's outputs in OUT are removed first, so no stale file (e.g. a run.mcap
+    left by an earlier run when this one has --no-mcap) is mistaken for this run's."""
+    old = [out_dir / n for n in OUTPUT_NAMES if (out_dir / n).is_file()]
+    if not old:
+        return
+    print(
+        f"note: replacing the outputs of a previous run in {out_dir} "
+        f"({', '.join(p.name for p in old)})",
+        file=sys.stderr,
+    )
+    for p in old:
+        try:
+            p.unlink()
+        except OSError as e:
+            raise OutputError(f"{p}: cannot replace the previous run's output: {e}") from None
+
+
 def run_slam(
     source: SequenceSource,
     out_dir: Path | str,
@@ -113,6 +145,7 @@ def run_slam(
     )
     if n_frames == 0:
         raise OutputError(f"{source.name}: no stereo frames in the selected time range")
+    _remove_previous_outputs(out_dir)
 
     observers = []
     mcap = sink = writer = None

@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+from eurocslam.commands._args import non_negative_float
 from eurocslam.errors import EurocSlamError
 
 NAME = "play"
@@ -30,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--rate",
-        type=float,
+        type=non_negative_float,
         default=1.0,
         help="playback speed, x real time (default 1; 0 = as fast as possible)",
     )

@@ -9,29 +9,17 @@ NAME = "run"
 HELP = "stereo-inertial SLAM: OUT/run.mcap (sensor streams + estimate), trajectories, map"
 
 
-def _time(value: str) -> float:
-    try:
-        return float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{value}' is not a number") from None
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from eurocslam.dataset.bag import add_source_arguments
+    from eurocslam.commands._args import add_sequence_arguments, finite_float, non_negative_float
 
-    parser.add_argument(
-        "sequence",
-        help="sequence folder (containing mav0/) or its mav0/ folder; also a ROS 1 .bag, a "
-        "ROS 2 bag folder, .db3 or .mcap (e.g. the output of convert)",
-    )
-    add_source_arguments(parser)
+    add_sequence_arguments(parser)
     parser.add_argument(
         "-o",
         "--output",
         required=True,
         metavar="OUT",
         help="output folder (created): run.mcap, trajectory_*.tum/.csv, map.ply, "
-        "config.yaml, summary.json",
+        "config.yaml, summary.json; a previous run's outputs there are replaced",
     )
     parser.add_argument(
         "--no-imu",
@@ -45,12 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--start",
-        type=_time,
+        type=finite_float,
         metavar="S",
         help="first time to process: seconds from the sequence start, or an "
         "absolute timestamp in ns",
     )
-    parser.add_argument("--end", type=_time, metavar="S", help="last time to process")
+    parser.add_argument("--end", type=finite_float, metavar="S", help="last time to process")
     parser.add_argument(
         "--no-mcap", action="store_true", help="skip run.mcap (trajectories, map and summary only)"
     )
@@ -80,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     live.add_argument(
         "--rate",
-        type=float,
+        type=non_negative_float,
         help="live view pacing, x the data's own rate (default 1; 0 = as fast as possible)",
     )
 
