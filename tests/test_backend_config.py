@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -15,8 +16,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 def test_shipped_yaml_equals_dataclass_defaults() -> None:
     shipped = load_config(REPO / "configs" / "euroc.yaml")
-    assert shipped == RunConfig()
-    assert load_config(None) == RunConfig()
+    # the frontend section (a plain mapping here) is checked against FrontendConfig below
+    assert dataclasses.replace(shipped, frontend={}) == RunConfig()
+    assert load_config(None) == shipped  # no --config: the shipped file
 
 
 def test_resolved_config_round_trips(tmp_path: Path) -> None:
@@ -53,3 +55,13 @@ def test_missing_and_broken_files(tmp_path: Path) -> None:
     p.write_text("backend: [1, 2\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(p)
+
+
+def test_shipped_yaml_lists_every_frontend_tunable_at_its_default() -> None:
+    """configs/euroc.yaml holds *all* tunables: the frontend section names every FrontendConfig
+    field, at the dataclass default."""
+    from eurocslam.frontend.config import FrontendConfig
+
+    shipped = yaml.safe_load((REPO / "configs" / "euroc.yaml").read_text())["frontend"]
+    assert set(shipped) == {f.name for f in dataclasses.fields(FrontendConfig)}
+    assert FrontendConfig.from_dict(shipped) == FrontendConfig()
