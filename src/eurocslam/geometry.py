@@ -7,6 +7,8 @@ ROS and TUM are x-first (`xyzw`).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -49,9 +51,30 @@ def quat_wxyz_to_rot(q: F64) -> F64:
     return r
 
 
+def _rot_to_quat_one(m: list[list[float]]) -> F64:
+    """`rot_to_quat_wxyz` of one matrix (nested lists), same Shepperd branch choice."""
+    (a, b, c), (d, e, f), (g, h, i) = m
+    key = (1 + a + e + i, 1 + a - e - i, 1 - a + e - i, 1 - a - e + i)
+    k = key.index(max(key))
+    if k == 0:
+        q = (key[0], h - f, c - g, d - b)
+    elif k == 1:
+        q = (h - f, key[1], b + d, c + g)
+    elif k == 2:
+        q = (c - g, b + d, key[2], f + h)
+    else:
+        q = (d - b, c + g, f + h, key[3])
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if q[0] < 0:
+        n = -n
+    return np.array([q[0] / n, q[1] / n, q[2] / n, q[3] / n])
+
+
 def rot_to_quat_wxyz(r: F64) -> F64:
     """Unit quaternions (..., 4) wxyz with w >= 0 from rotation matrices (..., 3, 3). Vectorised."""
     r = np.asarray(r, dtype=np.float64)
+    if r.shape == (3, 3):  # one matrix (a message per frame): plain floats are 20x faster
+        return _rot_to_quat_one(r.tolist())
     shape = r.shape[:-2]
     m = r.reshape(-1, 3, 3)
     d0, d1, d2 = m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]

@@ -73,23 +73,35 @@ class OrbExtractor:
         self.width = width
         self.height = height
         n_cand = max(config.n_features, int(config.n_features * config.orb_candidates_factor))
-        self._orb = cv2.ORB_create(
-            nfeatures=n_cand,
-            scaleFactor=config.orb_scale_factor,
-            nlevels=config.orb_levels,
-            edgeThreshold=19,
-            patchSize=31,
-            fastThreshold=config.fast_threshold,
+
+        def orb(fast_threshold: int) -> cv2.ORB:
+            return cv2.ORB_create(
+                nfeatures=n_cand,
+                scaleFactor=config.orb_scale_factor,
+                nlevels=config.orb_levels,
+                edgeThreshold=19,
+                patchSize=31,
+                fastThreshold=fast_threshold,
+                scoreType=cv2.ORB_HARRIS_SCORE if config.orb_harris_score else cv2.ORB_FAST_SCORE,
+            )
+
+        self._orb = orb(config.fast_threshold)
+        self._orb_low = (
+            orb(config.min_fast_threshold)
+            if config.min_fast_threshold < config.fast_threshold
+            else None
         )
         self.scale_factors = config.orb_scale_factor ** np.arange(config.orb_levels)
 
     def extract(self, img: U8) -> Features:
         c = self.config
         kps = self._orb.detect(img, None)
+        if len(kps) < c.n_features and self._orb_low is not None:
+            kps = self._orb_low.detect(img, None)  # low texture: a lower FAST threshold
         if not kps:
             return Features.empty()
-        uv = np.array([k.pt for k in kps], dtype=np.float64)
-        resp = np.array([k.response for k in kps], dtype=np.float64)
+        uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)
+        resp = np.fromiter((k.response for k in kps), dtype=np.float64, count=len(kps))
         keep = bucket_select(
             uv, resp, c.n_features, self.width, self.height, c.grid_cols, c.grid_rows
         )
@@ -98,8 +110,8 @@ class OrbExtractor:
         if desc is None or not kept:
             return Features.empty()
         return Features(
-            uv=np.array([k.pt for k in kept], dtype=np.float64).reshape(-1, 2),
-            octave=np.array([k.octave for k in kept], dtype=np.int32),
-            response=np.array([k.response for k in kept], dtype=np.float64),
+            uv=cv2.KeyPoint_convert(kept).astype(np.float64).reshape(-1, 2),
+            octave=np.fromiter((k.octave for k in kept), dtype=np.int32, count=len(kept)),
+            response=np.fromiter((k.response for k in kept), dtype=np.float64, count=len(kept)),
             desc=np.ascontiguousarray(desc, dtype=np.uint8),
         )

@@ -198,7 +198,9 @@ class StereoFrontend:
 
         n = max(1, self.config.prefetch_workers)
         with ThreadPoolExecutor(max_workers=n, thread_name_prefix="frontend-extract") as pool:
-            pending: deque[Future] = deque(pool.submit(job) for _ in range(n))
+            # two frames more than workers in flight: a worker that finishes early starts the
+            # next frame at once instead of waiting for the tracker to take its result
+            pending: deque[Future] = deque(pool.submit(job) for _ in range(n + 2))
             ready: dict[int, tuple[StereoFrame, FrameFeatures | _Partial]] = {}
             want = 0
             done = False

@@ -107,9 +107,10 @@ def _refine_subpixel(
     n_off = 2 * s + 1
     p = 2 * half + 1
     # zero-mean SSD of the left patch against every window of the strip, without building the
-    # windows: |pl|^2 - 2 <pl, w> + (sum w^2 - (sum w)^2 / P^2); <pl, w> via a strided view
-    win = np.lib.stride_tricks.sliding_window_view(strip, p, axis=2)  # (M, P, n_off, P)
-    cross = np.einsum("mpq,mpoq->mo", pl, win, optimize=False)
+    # windows: |pl|^2 - 2 <pl, w> + (sum w^2 - (sum w)^2 / P^2); <pl, w> one patch column at a time
+    cross = np.zeros((idx.size, n_off), np.float32)  # <pl, window at offset o>
+    for q in range(p):
+        cross += np.einsum("mp,mpo->mo", pl[:, :, q], strip[:, :, q : q + n_off])
     col = strip.sum(axis=1)  # (M, P + 2s)
     col2 = (strip * strip).sum(axis=1)
     csum = np.concatenate([np.zeros((col.shape[0], 1), np.float32), np.cumsum(col, axis=1)], 1)

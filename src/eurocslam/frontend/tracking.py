@@ -212,55 +212,62 @@ def optimize_pose(
     if n == 0:
         return T, inlier, chi2
     stereo = np.isfinite(meas[:, 1])
-    meas_f = np.where(np.isfinite(meas), meas, 0.0)
+    m_u, m_v = meas[:, 0], meas[:, 2]
+    m_r = np.where(stereo, meas[:, 1], 0.0)
     inv_s2 = 1.0 / (sigma * sigma)
     thr = np.where(stereo, chi2_stereo, chi2_mono)
-    comp_w = np.column_stack([np.ones(n), stereo.astype(float), np.ones(n)])
-    fx, fy, b = geom.fx, geom.fy, geom.baseline
+    fx, fy, cx, cy = geom.fx, geom.fy, geom.cx, geom.cy
+    fxb = fx * geom.baseline
+
+    def residuals(T: F64) -> tuple[F64, ...]:
+        X, Y, Z = (xyz @ T[:3, :3].T + T[:3, 3]).T
+        front = Z > 0.05
+        iz = 1.0 / np.where(front, Z, 1.0)
+        u = fx * X * iz + cx
+        ru = u - m_u
+        rr = np.where(stereo, u - fxb * iz - m_r, 0.0)
+        rv = fy * Y * iz + cy - m_v
+        e2 = (ru * ru + rr * rr + rv * rv) * inv_s2
+        return X, Y, Z, iz, front, ru, rr, rv, e2
+
+    J = np.empty((3, n, 6))
     for rnd in range(rounds):
         robust = rnd < rounds - 1
         for _ in range(iterations):
-            pc = xyz @ T[:3, :3].T + T[:3, 3]
-            z = pc[:, 2]
-            good = inlier & (z > 0.05)
-            zs = np.where(z > 0.05, z, 1.0)
-            iz = 1.0 / zs
-            u = fx * pc[:, 0] * iz + geom.cx
-            uR = u - fx * b * iz
-            v = fy * pc[:, 1] * iz + geom.cy
-            res = (np.column_stack([u, uR, v]) - meas_f) * comp_w
-            e2 = (res * res).sum(axis=1) * inv_s2
-            w = inv_s2 * good
-            if robust:
-                delta2 = thr
-                big = e2 > delta2
-                w = np.where(big, w * np.sqrt(delta2 / np.maximum(e2, 1e-12)), w)
-            if good.sum() < 4:
+            X, Y, Z, iz, front, ru, rr, rv, e2 = residuals(T)
+            good = inlier & front
+            if np.count_nonzero(good) < 4:
                 break
-            # J = d(u, uR, v)/d(pc) @ [I, -[pc]x] for pc' = exp(dw) pc + dt, written out
-            X, Y = pc[:, 0], pc[:, 1]
+            w = inv_s2 * good
+            if robust:  # Huber: weight sqrt(delta^2 / e^2) beyond the chi-square threshold
+                w = np.where(e2 > thr, w * np.sqrt(thr / np.maximum(e2, 1e-12)), w)
+            # d(u, uR, v)/d(dt, dw) for pc' = exp(dw) pc + dt; rotation part j . (-[pc]x)
             a = fx * iz
             c = fy * iz
-            du_dz = -fx * X * iz * iz
-            duR_dz = -fx * (X - b) * iz * iz
-            dv_dz = -fy * Y * iz * iz
-            Z = pc[:, 2]
-            J = np.zeros((n, 3, 6))
-            # translation columns
-            J[:, 0, 0] = a
-            J[:, 0, 2] = du_dz
-            J[:, 1, 0] = a
-            J[:, 1, 2] = duR_dz
-            J[:, 2, 1] = c
-            J[:, 2, 2] = dv_dz
-            # rotation columns: j . (-[pc]x) = pc x j
-            J[:, 0, 3], J[:, 0, 4], J[:, 0, 5] = Y * du_dz, Z * a - X * du_dz, -Y * a
-            J[:, 1, 3], J[:, 1, 4], J[:, 1, 5] = Y * duR_dz, Z * a - X * duR_dz, -Y * a
-            J[:, 2, 3], J[:, 2, 4], J[:, 2, 5] = Y * dv_dz - Z * c, -X * dv_dz, X * c
-            J *= comp_w[:, :, None]
-            Jw = J * w[:, None, None]
-            H = np.einsum("nki,nkj->ij", Jw, J, optimize=False)
-            g = np.einsum("nki,nk->i", Jw, res, optimize=False)
+            du_dz = -X * a * iz
+            duR_dz = du_dz + fxb * iz * iz
+            dv_dz = -Y * c * iz
+            J[0, :, 0] = a
+            J[0, :, 1] = 0.0
+            J[0, :, 2] = du_dz
+            J[0, :, 3] = Y * du_dz
+            J[0, :, 4] = Z * a - X * du_dz
+            J[0, :, 5] = -Y * a
+            J[1] = J[0]
+            J[1, :, 2] = duR_dz
+            J[1, :, 3] = Y * duR_dz
+            J[1, :, 4] = Z * a - X * duR_dz
+            J[1] *= stereo[:, None]
+            J[2, :, 0] = 0.0
+            J[2, :, 1] = c
+            J[2, :, 2] = dv_dz
+            J[2, :, 3] = Y * dv_dz - Z * c
+            J[2, :, 4] = -X * dv_dz
+            J[2, :, 5] = X * c
+            Jf = J.reshape(3 * n, 6)
+            JwT = (Jf * np.tile(w, 3)[:, None]).T
+            H = JwT @ Jf
+            g = JwT @ np.concatenate([ru, rr, rv])
             try:
                 dx = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
             except np.linalg.LinAlgError:
@@ -269,15 +276,8 @@ def optimize_pose(
             T = make_T(dR @ T[:3, :3], dR @ T[:3, 3] + dx[:3])
             if np.linalg.norm(dx) < 1e-6:
                 break
-        pc = xyz @ T[:3, :3].T + T[:3, 3]
-        z = pc[:, 2]
-        zs = np.where(z > 0.05, z, 1.0)
-        u = fx * pc[:, 0] / zs + geom.cx
-        uR = u - fx * b / zs
-        v = fy * pc[:, 1] / zs + geom.cy
-        res = (np.column_stack([u, uR, v]) - meas_f) * comp_w
-        chi2 = (res * res).sum(axis=1) * inv_s2
-        inlier = (chi2 < thr) & (z > 0.05)
+        *_, front, _, _, _, chi2 = residuals(T)
+        inlier = (chi2 < thr) & front
     return rigid(T), inlier, chi2
 
 
