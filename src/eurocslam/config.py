@@ -62,7 +62,7 @@ class BackendConfig:
     min_disparity_px: float = 1.0  # stereo observations below this are left out
     max_depth_m: float = 40.0
     min_obs_without_imu: int = 10  # a keyframe without an IMU factor needs this many points
-    max_landmarks_per_keyframe: int = 150
+    max_landmarks_per_keyframe: int = 100
     min_keyframe_interval_s: float = 0.2  # frontend keyframes closer than this are skipped
     max_keyframe_interval_s: float = 0.5  # force a keyframe after this long (bounds IMU spans)
     correct_landmarks: bool = True  # push smoothed landmark positions back to the frontend

@@ -18,6 +18,7 @@ from eurocslam.frontend.types import RectifiedStereo
 from eurocslam.geometry import F64, inv_T, make_T, so3_exp
 
 I64 = NDArray[np.int64]
+_I3 = np.eye(3)
 
 
 class LocalMap:
@@ -76,7 +77,15 @@ def rigid(T: F64) -> F64:
     off SO(3) makes `inv_T` (a transpose) an inexact inverse, and compositions amplify it.
     """
     T = np.asarray(T, dtype=np.float64)
-    u, _, vt = np.linalg.svd(T[:3, :3])
+    R = T[:3, :3]
+    if (
+        np.abs(R.T @ R - _I3).max() < 1e-12
+        and T[3, 3] == 1.0
+        and not T[3, :3].any()
+        and np.linalg.det(R) > 0
+    ):
+        return T.copy()  # already rigid to round-off: skip the SVD (hot path)
+    u, _, vt = np.linalg.svd(R)
     R = u @ vt
     if np.linalg.det(R) < 0:
         R = u @ np.diag([1.0, 1.0, -1.0]) @ vt
@@ -274,7 +283,7 @@ def optimize_pose(
                 break
             dR = so3_exp(dx[3:])
             T = make_T(dR @ T[:3, :3], dR @ T[:3, 3] + dx[:3])
-            if np.linalg.norm(dx) < 1e-6:
+            if np.linalg.norm(dx) < 1e-5:  # 10 um / 10 urad
                 break
         *_, front, _, _, _, chi2 = residuals(T)
         inlier = (chi2 < thr) & front
