@@ -34,6 +34,7 @@ from eurocslam.backend.preintegration import bias, integrate, make_params
 from eurocslam.config import RunConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
+from eurocslam.frontend.features import bucket_select
 from eurocslam.frontend.types import RectifiedStereo
 from eurocslam.geometry import F64
 
@@ -331,10 +332,20 @@ class StereoInertialEstimator:
         ok &= depth <= b.max_depth_m
         idx = np.nonzero(ok)[0]
         if idx.size > b.max_landmarks_per_keyframe:
-            # prefer landmarks already in the graph, then the nearest
+            # spread over the image (4 x 3 cells, round-robin), in each cell landmarks already
+            # in the graph first, then the nearest: the nearest alone can crowd one region
             known = np.array([self._is_active(int(ids[i])) for i in idx], dtype=bool)
-            order = np.lexsort((depth[idx], ~known))
-            idx = idx[order[: b.max_landmarks_per_keyframe]]
+            priority = np.where(known, 1e6, 0.0) - depth[idx]
+            pick = bucket_select(
+                uv[idx][:, [0, 2]],
+                priority,
+                b.max_landmarks_per_keyframe,
+                st.width,
+                st.height,
+                4,
+                3,
+            )
+            idx = idx[pick]
         T_world_rect0 = np.asarray(T_world_body) @ st.T_body_rect0
         n_new = 0
         for i in idx.tolist():
