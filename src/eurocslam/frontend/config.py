@@ -71,18 +71,6 @@ class FrontendConfig:
     image_dark_mean: float = 3.0  # below: black image
     reinit_after_lost_frames: int = 2  # consecutive LOST frames before re-creating the map
 
-    # ---- visual odometry local bundle adjustment (vo.py) -----------------------------------
-    # Local BA on/off. Off by default: on the 11 semi-real replicas (benchmarks/bench_frontend.py,
-    # 20 s each) frame-to-map tracking alone was more accurate on 8 of 11 (median ATE 3.8 vs
-    # 6.2 mm) and twice as fast; the BA (GTSAM, below) stays available for real data.
-    ba_enabled: bool = False
-    ba_window_keyframes: int = 8  # keyframes optimised
-    ba_fixed_keyframes: int = 2  # older keyframes held fixed (gauge + context)
-    ba_pixel_sigma: float = 1.0
-    ba_huber_k: float = 1.345  # robust loss (Huber) threshold in sigmas
-    ba_max_iterations: int = 6
-    ba_max_landmarks: int = 400  # most-observed landmarks of the window enter the BA
-
     # ---- execution -------------------------------------------------------------------------
     prefetch: bool = True  # decode+rectify+ORB of frame k+1 in a thread while k is tracked
     prefetch_workers: int = 2  # extraction threads (frames k+1, k+2 in flight)
@@ -137,8 +125,6 @@ class FrontendConfig:
             ("stereo_ratio", 0 < self.stereo_ratio <= 1),
             ("track_ratio", 0 < self.track_ratio <= 1),
             ("min_tracked", self.min_tracked >= 6),
-            ("ba_window_keyframes", self.ba_window_keyframes >= 2),
-            ("ba_fixed_keyframes", self.ba_fixed_keyframes >= 1),
             ("subpixel_half_window", self.subpixel_half_window >= 1),
             ("subpixel_search_px", self.subpixel_search_px >= 1),
         ]
