@@ -434,7 +434,7 @@ class SlamPipeline:
         assert self.est is not None
         t = init.t_ns
         try:
-            nav = self.est.initialize(init, fr.landmark_ids, fr.stereo_uv)
+            nav = self.est.initialize(init, fr.landmark_ids, fr.stereo_uv, fr.stereo_sigma)
         except EstimatorFailure as e:
             self._reset(t, f"initialisation failed: {e}", self._hint_T)
             return self._out(t, PipelineState.INIT, None, False, fr)
@@ -487,7 +487,9 @@ class SlamPipeline:
             if need_kf:
                 t0 = time.perf_counter()
                 try:
-                    nav = est.add_keyframe(t, fr.landmark_ids, fr.stereo_uv, fr.T_world_body)
+                    nav = est.add_keyframe(
+                        t, fr.landmark_ids, fr.stereo_uv, fr.T_world_body, fr.stereo_sigma
+                    )
                 except EstimatorFailure as e:
                     return self._fail(t, str(e), pred.T_world_body, fr)
                 self.summary.add_time("backend", (time.perf_counter() - t0) * 1e3)

@@ -95,11 +95,7 @@ class StereoInertialEstimator:
             stereo.fx, stereo.fy, 0.0, stereo.cx, stereo.cy, stereo.baseline
         )
         self.body_P_rect0 = _pose(stereo.T_body_rect0)
-        b = self.cfg.backend
-        base = gtsam.noiseModel.Isotropic.Sigma(3, b.stereo_sigma_px)
-        self.stereo_noise = gtsam.noiseModel.Robust.Create(
-            gtsam.noiseModel.mEstimator.Huber.Create(b.huber_k), base
-        )
+        self._stereo_noises: dict[float, gtsam.noiseModel.Base] = {}
         self._imu_rw_gyro = imu_calib.gyro_random_walk * self.cfg.imu.bias_walk_scale
         self._imu_rw_acc = imu_calib.accel_random_walk * self.cfg.imu.bias_walk_scale
         self._make_smoother()
@@ -144,6 +140,7 @@ class StereoInertialEstimator:
         init: InitialState,
         landmark_ids: np.ndarray,
         stereo_uv: F64,
+        stereo_sigma: F64 | None = None,
     ) -> NavEstimate:
         """First keyframe with priors; for a dynamic start, the window's keyframes with IMU
         factors between them are added too (their stereo observations are not kept)."""
@@ -190,7 +187,9 @@ class StereoInertialEstimator:
             np.asarray(init.ba, float),
         )
         self._reset_pim(init.t_ns, self.state)
-        self._add_stereo(0, init.T_world_body, landmark_ids, stereo_uv, graph, values, stamps, 0.0)
+        self._add_stereo(
+            0, init.T_world_body, landmark_ids, stereo_uv, stereo_sigma, graph, values, stamps, 0.0
+        )
         self._update(graph, values, stamps)
         return self._read_state(0, init.t_ns)
 
@@ -243,8 +242,11 @@ class StereoInertialEstimator:
         landmark_ids: np.ndarray,
         stereo_uv: F64,
         T_world_body_guess: F64 | None = None,
+        stereo_sigma: F64 | None = None,
     ) -> NavEstimate:
-        """Add a keyframe at `t_ns` with its stereo observations; returns its smoothed state."""
+        """Add a keyframe at `t_ns` with its stereo observations; returns its smoothed state.
+        `stereo_sigma`: per observation, the pixel sigma in units of `backend.stereo_sigma_px`
+        (the keypoint's pyramid scale); None: 1 for all."""
         assert self.state is not None
         k = self.k + 1
         pred = self.predict(t_ns)
@@ -297,7 +299,9 @@ class StereoInertialEstimator:
         tk = self._t(t_ns)
         for key in (X(k), V(k), B(k)):
             stamps[key] = tk
-        self._add_stereo(k, T_guess, landmark_ids, stereo_uv, graph, values, stamps, tk)
+        self._add_stereo(
+            k, T_guess, landmark_ids, stereo_uv, stereo_sigma, graph, values, stamps, tk
+        )
         n_known = self.stats.n_stereo_factors - self.stats.n_new_landmarks
         if not (self.use_imu and self._pim_ok) and n_known < self.cfg.backend.min_obs_without_imu:
             raise EstimatorFailure(
@@ -311,12 +315,25 @@ class StereoInertialEstimator:
         self._reset_pim(t_ns, est)
         return est
 
+    def _stereo_noise(self, scale: float) -> gtsam.noiseModel.Base:
+        """Huber-robust isotropic (uL, uR, v) noise of `stereo_sigma_px` x scale (cached)."""
+        m = self._stereo_noises.get(scale)
+        if m is None:
+            b = self.cfg.backend
+            base = gtsam.noiseModel.Isotropic.Sigma(3, b.stereo_sigma_px * max(scale, 1e-3))
+            m = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(b.huber_k), base
+            )
+            self._stereo_noises[scale] = m
+        return m
+
     def _add_stereo(
         self,
         k: int,
         T_world_body: F64,
         landmark_ids: np.ndarray,
         stereo_uv: F64,
+        stereo_sigma: F64 | None,
         graph: gtsam.NonlinearFactorGraph,
         values: gtsam.Values,
         stamps: dict[int, float],
@@ -326,6 +343,11 @@ class StereoInertialEstimator:
         st = self.stereo
         ids = np.asarray(landmark_ids, dtype=np.int64)
         uv = np.asarray(stereo_uv, dtype=np.float64).reshape(-1, 3)
+        scale = (
+            np.ones(len(uv))
+            if stereo_sigma is None or len(stereo_sigma) != len(uv)
+            else np.round(np.asarray(stereo_sigma, dtype=np.float64), 3)
+        )
         disp = uv[:, 0] - uv[:, 1]
         ok = np.isfinite(uv).all(axis=1) & (disp >= b.min_disparity_px)
         depth = np.where(ok, st.fx * st.baseline / np.where(ok, disp, 1.0), np.inf)
@@ -363,7 +385,7 @@ class StereoInertialEstimator:
             graph.add(
                 gtsam.GenericStereoFactor3D(
                     gtsam.StereoPoint2(uv[i, 0], uv[i, 1], uv[i, 2]),
-                    self.stereo_noise,
+                    self._stereo_noise(float(scale[i])),
                     X(k),
                     L(key_i),
                     self.K,
