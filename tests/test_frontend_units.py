@@ -116,6 +116,18 @@ def test_orb_extractor_count_and_blank_image() -> None:
     assert len(ex.extract(np.zeros((480, 752), np.uint8))) == 0
 
 
+def test_orb_extractor_falls_back_to_a_low_fast_threshold() -> None:
+    """A low-contrast image gives few corners at FAST 20: the extractor detects again at
+    `min_fast_threshold` and still returns about `n_features` (a dark EuRoC frame)."""
+    rng = np.random.default_rng(5)
+    img = cv2.GaussianBlur(rng.integers(0, 256, (480, 752), dtype=np.uint8), (5, 5), 0)
+    dim = (img // 4 + 40).astype(np.uint8)  # contrast / 4
+    strict = OrbExtractor(FrontendConfig(min_fast_threshold=20), 752, 480).extract(dim)
+    assert len(strict) < 100  # FAST 20 alone starves on it (measured: 3)
+    f = OrbExtractor(FrontendConfig(), 752, 480).extract(dim)
+    assert len(f) == 1000
+
+
 def test_image_problem_detects_degraded_frames() -> None:
     cfg = FrontendConfig()
     rng = np.random.default_rng(5)
