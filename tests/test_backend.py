@@ -253,3 +253,23 @@ def test_capped_observations_cover_the_image() -> None:
         return {(int(u * 4 // st.width), int(v * 3 // st.height)) for u, v in p}
 
     assert len(cells(pix)) == len(cells(o.uv[:, [0, 2]])) >= 9  # every occupied cell
+
+
+def test_stereo_noise_follows_the_keypoint_scale() -> None:
+    """Each observation's noise is stereo_sigma_px x its pyramid scale (ORB-SLAM's weighting):
+    coarse-octave keypoints weigh less."""
+    cfg = RunConfig(backend=BackendConfig(lag_s=3.0, stereo_sigma_px=1.0))
+    m = lissajous_motion(2.0)
+    st = euroc_like_stereo()
+    est = StereoInertialEstimator(RIG.imu, st, _noisy_imu(m), cfg)
+    o = observe(m.pose(0.0), random_landmarks(3000), st, pixel_sigma=0.5)
+    scale = 1.2 ** (np.arange(len(o.ids)) % 4)
+    init = InitialState(_ns(0.0), m.pose(0.0), _velocity(m, 0.0), BG, BA, "dynamic")
+    est.initialize(init, o.ids, o.uv, scale)
+    g = est.segment.graph
+    factors = [g.at(i) for i in range(g.size())]
+    stereo = [f for f in factors if isinstance(f, gtsam.GenericStereoFactor3D)]
+    assert len(stereo) == min(len(o.ids), cfg.backend.max_landmarks_per_keyframe)
+    # a small error: inside the Huber threshold, whitening is just 1 / sigma
+    sigmas = sorted({round(0.01 / f.noiseModel().whiten(np.full(3, 0.01))[0], 6) for f in stereo})
+    assert sigmas == [round(1.2**k, 6) for k in range(4)]
