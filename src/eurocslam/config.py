@@ -62,6 +62,8 @@ class BackendConfig:
     min_disparity_px: float = 1.0  # stereo observations below this are left out
     max_depth_m: float = 40.0
     min_obs_without_imu: int = 10  # a keyframe without an IMU factor needs this many points
+    vo_bridge_rot_sigma: float = 0.02  # visual-only: a keyframe with too few of them is
+    vo_bridge_pos_sigma: float = 0.05  # tied to the last one by the frontend's motion (rad, m)
     max_landmarks_per_keyframe: int = 100
     min_keyframe_interval_s: float = 0.2  # frontend keyframes closer than this are skipped
     max_keyframe_interval_s: float = 0.5  # force a keyframe after this long (bounds IMU spans)
@@ -187,6 +189,8 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
             "max_keyframe_interval_s",
             "relinearize_skip",
             "max_landmarks_per_keyframe",
+            "vo_bridge_rot_sigma",
+            "vo_bridge_pos_sigma",
         ),
         "health": ("max_speed", "max_gyro_bias", "max_accel_bias", "max_lost_s", "max_step_m"),
     }

@@ -304,8 +304,20 @@ class StereoInertialEstimator:
         )
         n_known = self.stats.n_stereo_factors - self.stats.n_new_landmarks
         if not (self.use_imu and self._pim_ok) and n_known < self.cfg.backend.min_obs_without_imu:
-            raise EstimatorFailure(
-                f"keyframe at t={t_ns} ns sees {n_known} mapped landmarks and has no IMU constraint"
+            if self.use_imu or T_world_body_guess is None:
+                raise EstimatorFailure(
+                    f"keyframe at t={t_ns} ns sees {n_known} mapped landmarks and has no IMU "
+                    "constraint"
+                )
+            # visual-only, the frontend started a new local map (after a lost frame): link the
+            # keyframe to the previous one by the frontend's relative motion instead of failing
+            T_rel = np.linalg.inv(self.state.T_world_body) @ np.asarray(T_world_body_guess)
+            b = self.cfg.backend
+            sig = np.array([b.vo_bridge_rot_sigma] * 3 + [b.vo_bridge_pos_sigma] * 3)
+            graph.add(
+                gtsam.BetweenFactorPose3(
+                    X(k - 1), X(k), _pose(T_rel), gtsam.noiseModel.Diagonal.Sigmas(sig)
+                )
             )
         self.stats.imu_bridged = bridged
         self.k = k
