@@ -23,8 +23,8 @@ class FrontendConfig:
     orb_scale_factor: float = 1.2  # pyramid scale between levels
     orb_levels: int = 8
     # FAST threshold. Detection time grows with the number of raw corners (rendered replicas
-    # give ~30k at 10, 1.7x ORB's time at 20): 20 as in ORB-SLAM, and a second detection at
-    # `min_fast_threshold` when an image (dark, low texture) gives fewer than n_features
+    # give ~30k at 10; ORB then takes 1.5x as long as at 20): 20 as in ORB-SLAM, and a second
+    # detection at `min_fast_threshold` when an image (dark, low texture) gives < n_features
     fast_threshold: int = 20
     min_fast_threshold: int = 7
     orb_harris_score: bool = False  # rank corners by Harris (slower) instead of FAST score
