@@ -309,8 +309,9 @@ class StereoInertialEstimator:
                     f"keyframe at t={t_ns} ns sees {n_known} mapped landmarks and has no IMU "
                     "constraint"
                 )
-            # visual-only, the frontend started a new local map (after a lost frame): link the
-            # keyframe to the previous one by the frontend's relative motion instead of failing
+            # visual-only: the frontend tracks landmarks the smoother no longer holds (unseen by
+            # it for the lag: marginalised) or a new map; link the keyframe to the previous one
+            # by the frontend's relative motion instead of failing
             T_rel = np.linalg.inv(self.state.T_world_body) @ np.asarray(T_world_body_guess)
             b = self.cfg.backend
             sig = np.array([b.vo_bridge_rot_sigma] * 3 + [b.vo_bridge_pos_sigma] * 3)
