@@ -65,6 +65,7 @@ class BackendConfig:
     vo_bridge_rot_sigma: float = 0.02  # visual-only: a keyframe with too few of them is
     vo_bridge_pos_sigma: float = 0.05  # tied to the last one by the frontend's motion (rad, m)
     max_landmarks_per_keyframe: int = 100
+    max_landmarks_per_keyframe_no_imu: int = 150  # visual-only: vision alone holds the keyframes
     min_keyframe_interval_s: float = 0.2  # frontend keyframes closer than this are skipped
     max_keyframe_interval_s: float = 0.5  # force a keyframe after this long (bounds IMU spans)
     correct_landmarks: bool = True  # push smoothed landmark positions back to the frontend
@@ -189,6 +190,7 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
             "max_keyframe_interval_s",
             "relinearize_skip",
             "max_landmarks_per_keyframe",
+            "max_landmarks_per_keyframe_no_imu",
             "vo_bridge_rot_sigma",
             "vo_bridge_pos_sigma",
         ),

@@ -366,7 +366,8 @@ class StereoInertialEstimator:
         depth = np.where(ok, st.fx * st.baseline / np.where(ok, disp, 1.0), np.inf)
         ok &= depth <= b.max_depth_m
         idx = np.nonzero(ok)[0]
-        if idx.size > b.max_landmarks_per_keyframe:
+        cap = b.max_landmarks_per_keyframe if self.use_imu else b.max_landmarks_per_keyframe_no_imu
+        if idx.size > cap:
             # spread over the image (4 x 3 cells, round-robin), in each cell landmarks already
             # in the graph first, then the nearest: the nearest alone can crowd one region
             known = np.array([self._is_active(int(ids[i])) for i in idx], dtype=bool)
@@ -374,7 +375,7 @@ class StereoInertialEstimator:
             pick = bucket_select(
                 uv[idx][:, [0, 2]],
                 priority,
-                b.max_landmarks_per_keyframe,
+                cap,
                 st.width,
                 st.height,
                 4,
