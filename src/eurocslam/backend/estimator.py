@@ -36,7 +36,7 @@ from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
 from eurocslam.frontend.features import bucket_select
 from eurocslam.frontend.types import RectifiedStereo
-from eurocslam.geometry import F64
+from eurocslam.geometry import F64, inv_T
 
 
 class EstimatorFailure(RuntimeError):
@@ -312,7 +312,7 @@ class StereoInertialEstimator:
             # visual-only: the frontend tracks landmarks the smoother no longer holds (unseen by
             # it for the lag: marginalised) or a new map; link the keyframe to the previous one
             # by the frontend's relative motion instead of failing
-            T_rel = np.linalg.inv(self.state.T_world_body) @ np.asarray(T_world_body_guess)
+            T_rel = inv_T(self.state.T_world_body) @ np.asarray(T_world_body_guess)
             b = self.cfg.backend
             sig = np.array([b.vo_bridge_rot_sigma] * 3 + [b.vo_bridge_pos_sigma] * 3)
             graph.add(
