@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
 from eurocslam.dataset.types import U8
@@ -95,17 +96,16 @@ def _refine_subpixel(
     idx = np.nonzero(ok)[0]
     if idx.size == 0:
         return out, cost_best
-    k = np.arange(-half, half + 1)
-    rows = v0[idx, None] + k[None, :]  # (M, P)
-    # left patches (M, P, P), mean-normalised
-    pl = img_l[rows[:, :, None], ul0[idx, None, None] + k[None, None, :]].astype(np.float32)
-    pl -= pl.mean(axis=(1, 2), keepdims=True)
-    # right strip (M, P, P + 2 * (search + 1)) covering every shifted window
     s = search + 1
-    kk = np.arange(-half - s, half + s + 1)
-    strip = img_r[rows[:, :, None], ur0[idx, None, None] + kk[None, None, :]].astype(np.float32)
     n_off = 2 * s + 1
     p = 2 * half + 1
+    top = v0[idx] - half
+    # left patches (M, P, P), mean-normalised; gathered from a window view of the image
+    pl = sliding_window_view(img_l, (p, p))[top, ul0[idx] - half].astype(np.float32)
+    pl -= pl.mean(axis=(1, 2), keepdims=True)
+    # right strip (M, P, P + 2 * (search + 1)) covering every shifted window
+    strip = sliding_window_view(img_r, (p, p + 2 * s))[top, ur0[idx] - half - s]
+    strip = strip.astype(np.float32)
     # zero-mean SSD of the left patch against every window of the strip, without building the
     # windows: |pl|^2 - 2 <pl, w> + (sum w^2 - (sum w)^2 / P^2); <pl, w> one patch column at a time
     cross = np.zeros((idx.size, n_off), np.float32)  # <pl, window at offset o>
