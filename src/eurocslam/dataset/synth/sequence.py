@@ -33,7 +33,7 @@ from eurocslam.errors import DatasetError
 from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
 
 # bump whenever the same spec would give different files (caches compare it)
-GENERATOR_REVISION = 3
+GENERATOR_REVISION = 4
 DEFAULT_DURATION_S = 30.0
 TINY_DURATION_S = 2.0
 # sensor model constants (documented in the README)
@@ -51,8 +51,10 @@ class SynthSpec:
     Motion: the built-in flight (`trajectory=None`, `duration_s` seconds, default 30) or a given
     ground truth (`trajectory`: EuRoC ASL CSV or TUM), cropped to [`start_s`, `end_s`] seconds
     after its first pose (`duration_s`, when given, caps the length). `imu`: real IMU rows
-    (ASL imu0/data.csv) to ship instead of simulated ones. `calib`: a folder with
-    cam0/cam1/imu0 sensor.yaml (default: EuRoC's, shipped in the package).
+    (ASL imu0/data.csv) to ship instead of simulated ones; the images then follow the motion
+    those rows measured (high frequency) on the ground truth (low frequency), in a world turned
+    onto the accelerometer's gravity (`fusion.py`; `knot_dt_s` is unused). `calib`: a folder
+    with cam0/cam1/imu0 sensor.yaml (default: EuRoC's, shipped in the package).
     """
 
     duration_s: float | None = None
@@ -139,8 +141,13 @@ class Scene:
             if spec.duration_s is not None:
                 start = spec.start_s or 0.0
                 end = start + spec.duration_s if end is None else min(end, start + spec.duration_s)
+            real_rows = None
+            if spec.imu is not None:
+                # the motion the real IMU measured (high frequency) on the ground truth (low)
+                span = 2 * 10**9  # read_real_imu needs rows in range; the fit takes what it needs
+                real_rows = read_real_imu(Path(spec.imu), gt.t_ns[0] - span, gt.t_ns[-1] + span)
             motion = motion_from_groundtruth(
-                gt, start_s=spec.start_s, end_s=end, knot_dt=spec.knot_dt_s
+                gt, start_s=spec.start_s, end_s=end, knot_dt=spec.knot_dt_s, imu=real_rows
             )
             floor_z = None
         t_lo = motion.t0_ns + round(motion.t_start_s * 1e9)
@@ -169,7 +176,8 @@ class Scene:
             # the world encloses the whole recorded flight, so every crop of a sequence flies
             # through the same room
             step = max(1, len(gt.p) // 4000)
-            path = np.vstack([path, gt.p[::step]])
+            p_all = gt.p[::step] if motion.world_R is None else gt.p[::step] @ motion.world_R.T
+            path = np.vstack([path, p_all])
         world = build_world(path, spec.seed, floor_z=floor_z, marker=spec.marker)
         models = (camera_model(rig.cam0), camera_model(rig.cam1))
         return cls(spec, rig, motion, world, models, cam_t, imu)

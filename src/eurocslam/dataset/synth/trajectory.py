@@ -33,6 +33,8 @@ class Motion:
     `t0_ns` is the absolute time of spline time 0. `bias_source` (optional) gives IMU biases
     from the input ground truth, as (t_ns, bg (N, 3), ba (N, 3)). `fit_rms_m`/`fit_rms_deg` are
     the residuals of the spline against the input poses (0 for the built-in motion).
+    `world_R` rotates the input's world into the spline's (a real-IMU replica's world is turned
+    so the real accelerometer's gravity points along -z; otherwise the identity).
     """
 
     spline: SplineTrajectory
@@ -43,6 +45,7 @@ class Motion:
     bias_source: tuple[np.ndarray, F64, F64] | None = None
     fit_rms_m: float = 0.0
     fit_rms_deg: float = 0.0
+    world_R: F64 | None = None
 
 
 def _smoothstep(x: F64) -> F64:
@@ -163,9 +166,15 @@ def motion_from_groundtruth(
     end_s: float | None = None,
     knot_dt: float = 0.1,
     smooth_sigma_s: float = 0.03,
+    imu: tuple[np.ndarray, F64, F64] | None = None,
 ) -> Motion:
     """Spline through a real ground truth, cropped to [start_s, end_s] seconds after its first
-    pose. The fit uses up to 1 s of poses beyond the crop so its ends are not distorted."""
+    pose. The fit uses up to 1 s of poses beyond the crop so its ends are not distorted.
+
+    With `imu` (t_ns, gyro, accel: the real IMU rows that will ship with the replica) the motion
+    is the IMU's at high frequency and the ground truth's at low frequency (`fusion.py`), in a
+    world turned so the accelerometer's gravity is along -z, with a knot per IMU sample;
+    `knot_dt` and `smooth_sigma_s` are then unused."""
     t_ns = gt.t_ns
     t_first = int(t_ns[0])
     rel = (t_ns - t_first).astype(np.float64) * 1e-9
@@ -191,15 +200,20 @@ def motion_from_groundtruth(
     i0 = int(np.searchsorted(rel, a - 1e-9))
     t0_ns = int(t_ns[i0])
     ts = (t_ns[sel] - t0_ns).astype(np.float64) * 1e-9
-    spline = fit_spline(
-        ts, gt.p[sel], gt.q_wxyz[sel], knot_dt=knot_dt, smooth_sigma_s=smooth_sigma_s
-    )
+    world_R = None
+    p_in, q_in = gt.p[sel], gt.q_wxyz[sel]
+    if imu is None:
+        spline = fit_spline(ts, p_in, q_in, knot_dt=knot_dt, smooth_sigma_s=smooth_sigma_s)
+    else:
+        spline, world_R = _imu_spline(gt, sel, t0_ns, imu)
+        p_in = p_in @ world_R.T
+        q_in = rot_to_quat_wxyz(world_R @ quat_wxyz_to_rot(q_in))
     t_end = min(b - (t0_ns - t_first) * 1e-9, spline.t_end)
     # residuals against the input inside the crop
     m = (ts >= 0) & (ts <= t_end)
     st = spline.evaluate(ts[m])
-    dp = np.linalg.norm(st.p - gt.p[sel][m], axis=1)
-    Rin = quat_wxyz_to_rot(gt.q_wxyz[sel][m])
+    dp = np.linalg.norm(st.p - p_in[m], axis=1)
+    Rin = quat_wxyz_to_rot(q_in[m])
     cosang = (np.einsum("nij,nij->n", st.R, Rin) - 1.0) / 2.0
     ang = np.degrees(np.arccos(np.clip(cosang, -1.0, 1.0)))
     bias = None
@@ -214,4 +228,45 @@ def motion_from_groundtruth(
         bias_source=bias,
         fit_rms_m=float(np.sqrt(np.mean(dp**2))),
         fit_rms_deg=float(np.sqrt(np.mean(ang**2))),
+        world_R=world_R,
     )
+
+
+def _imu_spline(
+    gt: GroundTruthInput, sel: np.ndarray, t0_ns: int, imu: tuple[np.ndarray, F64, F64]
+) -> tuple[SplineTrajectory, F64]:
+    """Spline (a knot per IMU sample) over the selected poses' time span through the IMU/ground
+    truth fusion; and the rotation of the input world into the spline's. The fusion runs over
+    the whole overlap of the IMU and the ground truth, so every crop of a sequence has the same
+    motion and world."""
+    from eurocslam.dataset.synth.fusion import fuse_imu_groundtruth
+
+    t_imu, gyro, accel = imu
+    m = (t_imu >= gt.t_ns[0]) & (t_imu <= gt.t_ns[-1])
+    lo, hi = int(gt.t_ns[sel][0]), int(gt.t_ns[sel][-1])
+    if int(np.count_nonzero(m & (t_imu >= lo) & (t_imu <= hi))) < 10:
+        raise DatasetError(
+            f"{gt.path}: the IMU rows do not cover the ground truth's poses "
+            f"[{lo}, {hi}] ns of the crop"
+        )
+    t_imu, gyro, accel = t_imu[m], gyro[m], accel[m]
+    R_in = quat_wxyz_to_rot(gt.q_wxyz)
+    if gt.bg is not None and gt.ba is not None:
+        x = (gt.t_ns - gt.t_ns[0]).astype(np.float64)
+        xq = (t_imu - gt.t_ns[0]).astype(np.float64)
+        bg = np.stack([np.interp(xq, x, gt.bg[:, k]) for k in range(3)], -1)
+        ba = np.stack([np.interp(xq, x, gt.ba[:, k]) for k in range(3)], -1)
+    else:
+        # no bias columns: a constant gyro bias against the ground truth's rotation rate
+        ts = (gt.t_ns - gt.t_ns[0]).astype(np.float64) * 1e-9
+        ref = fit_spline(ts, gt.p, gt.q_wxyz, knot_dt=0.1, smooth_sigma_s=0.03)
+        w = ref.evaluate((t_imu - gt.t_ns[0]).astype(np.float64) * 1e-9).w_body
+        bg = np.broadcast_to(np.mean(gyro - w, axis=0), gyro.shape)
+        ba = np.zeros_like(accel)
+    fused = fuse_imu_groundtruth(t_imu, gyro, accel, bg, ba, gt.t_ns, R_in, gt.p)
+    keep = (t_imu >= lo) & (t_imu <= hi)
+    t = (t_imu[keep] - t0_ns).astype(np.float64) * 1e-9
+    q = rot_to_quat_wxyz(fused.R[keep])
+    period = float(np.median(np.diff(t)))
+    spline = fit_spline(t, fused.p[keep], q, knot_dt=period, grid_dt=period)
+    return spline, fused.world_R
