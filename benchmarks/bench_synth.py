@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from eurocslam.dataset.synth import Scene, SynthSpec, synthesize
+from eurocslam.dataset.synth.sequence import PNG_PARAMS
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("EUROCSLAM_SHARED_EUROC", REPO.parent / "shared/data/euroc"))
@@ -48,16 +49,7 @@ def per_pair_times(scene: Scene, frames: list[int]) -> dict[str, tuple[float, fl
             c0, w0 = time.process_time(), time.perf_counter()
             for cam in (0, 1):
                 img, _ = scene.image(k, cam)
-                cv2.imwrite(
-                    f"{tmp}/{cam}.png",
-                    img,
-                    [
-                        cv2.IMWRITE_PNG_COMPRESSION,
-                        1,
-                        cv2.IMWRITE_PNG_STRATEGY,
-                        cv2.IMWRITE_PNG_STRATEGY_HUFFMAN_ONLY,
-                    ],
-                )
+                cv2.imwrite(f"{tmp}/{cam}.png", img, PNG_PARAMS)
             full_cpu.append(time.process_time() - c0)
             full_wall.append(time.perf_counter() - w0)
     med = statistics.median
