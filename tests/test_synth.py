@@ -329,9 +329,10 @@ def test_imu_groundtruth_fusion_recovers_the_motion() -> None:
 
 
 def test_real_imu_replica_is_consistent(euroc_dir: Path, v101_micro: Path) -> None:
-    """V1_01: the real gyro and accelerometer (minus the ground truth's biases) integrate onto
-    the replica's trajectory over 0.2 s (a keyframe interval) nearly as well as a simulated IMU
-    (0.007 deg, 1.6 mm/s); a spline through the ground truth alone gave 0.065 deg, 14 mm/s."""
+    """V1_01: the real gyro (minus a constant bias) integrates onto the replica's rotation over
+    0.05 and 0.2 s (a keyframe interval) better than a simulated IMU does (0.003, 0.007 deg; a
+    spline through the ground truth alone: 0.069, 0.067 deg); the accelerometer's delta-v error
+    over 0.2 s halves (17.5 -> 7.5 mm/s; what is left is its own bias wander)."""
     spec = SynthSpec(
         trajectory=euroc_dir / "groundtruth" / "V1_01_easy.csv",
         imu=v101_micro / "mav0" / "imu0" / "data.csv",
@@ -342,20 +343,21 @@ def test_real_imu_replica_is_consistent(euroc_dir: Path, v101_micro: Path) -> No
     imu = sc.imu
     assert imu.real
     assert np.all(np.isin(sc.cam_t_ns, imu.t_ns))
-    assert np.all(np.abs(imu.bg[0]) > 0)  # V1_01 ground truth carries biases
-    # the ground truth's world is 0.24 deg off the accelerometer's gravity: turned back
+    # the biases taken off: the ground truth's columns' means, constant
+    assert np.all(np.abs(imu.bg[0]) > 0) and np.all(imu.bg == imu.bg[0])
+    # the ground truth's world is 0.2 deg off the accelerometer's gravity: turned back
     assert sc.motion.world_R is not None
     turn = np.degrees(np.linalg.norm(so3_log_batch(sc.motion.world_R[None])))
-    assert 0.15 < turn < 0.35
-    assert sc.motion.fit_rms_m < 0.01 and sc.motion.fit_rms_deg < 0.1  # still the real motion
+    assert 0.1 < turn < 0.3
+    assert sc.motion.fit_rms_m < 0.004 and sc.motion.fit_rms_deg < 0.4  # still the real motion
     st = sc.motion.spline.evaluate(sc.t_s(imu.t_ns))
     turned = np.degrees(np.linalg.norm(so3_log_batch((st.R[0].T @ st.R[200])[None])))
     assert turned > 5.0
     ang, dv = _window_mismatch(imu.t_ns, imu.gyro, imu.accel, imu.bg, imu.ba, st, 40)
-    assert ang < 0.02
-    assert dv < 0.004
+    assert ang < 0.006
+    assert dv < 0.011
     ang, _ = _window_mismatch(imu.t_ns, imu.gyro, imu.accel, imu.bg, imu.ba, st, 10)
-    assert ang < 0.006  # over 0.05 s: 0.003 deg (spline through the ground truth: 0.069)
+    assert ang < 0.002
 
 
 # ---- CLI ------------------------------------------------------------------------------------

@@ -33,7 +33,7 @@ from eurocslam.errors import DatasetError
 from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
 
 # bump whenever the same spec would give different files (caches compare it)
-GENERATOR_REVISION = 4
+GENERATOR_REVISION = 5
 DEFAULT_DURATION_S = 30.0
 TINY_DURATION_S = 2.0
 # sensor model constants (documented in the README)
