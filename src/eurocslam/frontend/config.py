@@ -21,16 +21,17 @@ class FrontendConfig:
     grid_cols: int = 8  # bucketing grid over the image
     grid_rows: int = 6
     orb_scale_factor: float = 1.2  # pyramid scale between levels
-    # 6 levels (scale range 2.5x; ORB-SLAM uses 8) and 1.5x candidates: ORB ~20 % faster, end-to-end
-    # CPU -7 % on the demo flight, ATE as good (see README, Frontend)
-    orb_levels: int = 6
+    # 8 levels as ORB-SLAM (scale range 3.6x): with 6, ORB was faster but visual-only drifted
+    # on the machine halls (full-length MH_04 replica 0.118 m instead of 0.042)
+    orb_levels: int = 8
     # FAST threshold. Detection time grows with the number of raw corners (rendered replicas
     # give ~30k at 10; ORB then takes 1.5x as long as at 20): 20 as in ORB-SLAM, and a second
     # detection at `min_fast_threshold` when an image (dark, low texture) gives < n_features
     fast_threshold: int = 20
     min_fast_threshold: int = 7
     orb_harris_score: bool = False  # rank corners by Harris (slower) instead of FAST score
-    orb_candidates_factor: float = 1.5  # ORB detects factor * n_features before bucketing
+    # ORB detects factor * n_features before bucketing (2.5: ORB ~10 % slower)
+    orb_candidates_factor: float = 1.5
 
     # ---- stereo rectification and matching (stereo.py, matching.py) ----------------------
     rectify_alpha: float = 0.0  # cv2.stereoRectify alpha: 0 = only valid pixels
