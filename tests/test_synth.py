@@ -113,6 +113,15 @@ def test_noise_free_imu_integrates_back_to_groundtruth(ideal_seq: Path) -> None:
     assert np.all(gt.bg == 0) and np.all(gt.ba == 0)
 
 
+def test_consistency_measure_of_a_noise_free_sequence(ideal_seq: Path) -> None:
+    from eurocslam.dataset.synth.consistency import main, sequence_mismatch
+
+    m = sequence_mismatch(ideal_seq, windows_s=(0.05, 0.2, 1.0))
+    assert max(m.gyro_deg) < 1e-3
+    assert max(m.dv_mps) < 1e-3
+    assert main([]) == 2
+
+
 def test_imu_noise_and_biases_follow_the_calibration() -> None:
     from eurocslam.dataset.calib import default_rig
     from eurocslam.dataset.synth.imu import ideal_imu, simulate_imu
