@@ -24,8 +24,11 @@ The crossovers: `TAU_ROT_S` = 10 s (the gyro over the ground truth's orientation
 0.2-0.3 deg; the result stays 0.25 deg RMS from it on V1_01) and `TAU_POS_S` = 0.3 s (Vicon
 positions are good to a millimetre: the result stays 1.5 mm RMS from them; a longer crossover
 buys little, 1 s: 11 mm for 15 % less accelerometer mismatch). What remains between the real
-accelerometer and the trajectory is a bias wandering by some 30 mm/s^2 within seconds, which
-no motion within a few centimetres of the Vicon positions removes: the real IMU's own error.
+accelerometer and the trajectory is a bias that wanders 4-5x faster than imu0/sensor.yaml's
+random walk (its 0.5 s low-pass changes by 25 mm/s^2 RMS over 1 s and 43 over 5 s; a simulated
+IMU: 4.6 and 11), which no motion within centimetres of the Vicon positions removes (making the
+accelerometer consistent too would take the motion 0.13 m off them at a 3 s crossover, 1.8 m at
+10 s): the real IMU's own error, kept.
 """
 
 from __future__ import annotations

@@ -242,10 +242,10 @@ def _imu_spline(
     the fusion took off the IMU, as a bias source. The fusion runs over the whole overlap of
     the IMU and the ground truth, so every crop of a sequence has the same motion and world.
 
-    The biases are the means of the ground truth's bias columns: V1_01's (an IMU/Vicon fit)
-    swing by 20-100 mm/s^2 within 5 s, where the real accelerometer's bias hardly moves; taking
-    them sample by sample would build that swing into the motion, and no estimator whose bias
-    is a slow random walk could follow it."""
+    The biases are the means of the ground truth's bias columns. V1_01's (an IMU/Vicon fit)
+    swing by 20-100 mm/s^2 within 5 s, but that fit used its own orientation, whose tilt the
+    accelerometer and gyro both disagree with; a constant bias imports none of it, and what the
+    real accelerometer does beyond it stays in the replica as the IMU's own error."""
     from eurocslam.dataset.synth.fusion import fuse_imu_groundtruth
 
     t_imu, gyro, accel = imu
