@@ -73,11 +73,24 @@ def gt_file(full: str) -> Path:
 
 def make_replica(short: str, cache: Path, duration: float | None, seed: int) -> Path:
     from eurocslam.dataset.synth import SynthSpec, synthesize
+    from eurocslam.dataset.synth.sequence import GENERATOR_REVISION
 
     tag = f"{short}_{'full' if duration is None else f'{duration:g}s'}_s{seed}"
     out = cache / tag
     if (out / "mav0").is_dir():
-        return out
+        # a replica rendered by an older generator is stale: render it again
+        try:
+            revision = json.loads((out / "synth.json").read_text()).get("generator_revision")
+        except (OSError, ValueError):
+            revision = None
+        if revision == GENERATOR_REVISION:
+            return out
+        print(
+            f"  {tag}: cached replica has generator revision {revision}, "
+            f"the generator is at {GENERATOR_REVISION}: rendering it again",
+            file=sys.stderr,
+            flush=True,
+        )
     spec = SynthSpec(
         trajectory=gt_file(SEQUENCES[short]),
         imu=V101_IMU if short == "V1_01" and V101_IMU.exists() else None,
