@@ -28,7 +28,8 @@ class ImuConfig:
     # multipliers on the sensor.yaml noise densities (datasheet values are optimistic)
     gyro_noise_scale: float = 1.0
     accel_noise_scale: float = 1.0
-    bias_walk_scale: float = 1.0
+    gyro_bias_walk_scale: float = 1.0  # multipliers on the sensor.yaml bias random walks
+    accel_bias_walk_scale: float = 1.0
     integration_sigma: float = 1e-4  # continuous-time position integration noise
     max_gap_s: float = 0.05  # longer gaps between IMU samples count as an IMU dropout
 
@@ -168,7 +169,8 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
             "gravity",
             "gyro_noise_scale",
             "accel_noise_scale",
-            "bias_walk_scale",
+            "gyro_bias_walk_scale",
+            "accel_bias_walk_scale",
             "integration_sigma",
             "max_gap_s",
         ),

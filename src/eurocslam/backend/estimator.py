@@ -96,8 +96,8 @@ class StereoInertialEstimator:
         )
         self.body_P_rect0 = _pose(stereo.T_body_rect0)
         self._stereo_noises: dict[float, gtsam.noiseModel.Base] = {}
-        self._imu_rw_gyro = imu_calib.gyro_random_walk * self.cfg.imu.bias_walk_scale
-        self._imu_rw_acc = imu_calib.accel_random_walk * self.cfg.imu.bias_walk_scale
+        self._imu_rw_gyro = imu_calib.gyro_random_walk * self.cfg.imu.gyro_bias_walk_scale
+        self._imu_rw_acc = imu_calib.accel_random_walk * self.cfg.imu.accel_bias_walk_scale
         self._make_smoother()
         self.k = -1  # index of the latest keyframe
         self.t0_ns = 0

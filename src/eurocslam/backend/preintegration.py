@@ -32,8 +32,8 @@ def make_params(imu: ImuCalib, cfg: ImuConfig | None = None) -> gtsam.Preintegra
     i3 = np.eye(3)
     p.setGyroscopeCovariance((imu.gyro_noise_density * cfg.gyro_noise_scale) ** 2 * i3)
     p.setAccelerometerCovariance((imu.accel_noise_density * cfg.accel_noise_scale) ** 2 * i3)
-    p.setBiasOmegaCovariance((imu.gyro_random_walk * cfg.bias_walk_scale) ** 2 * i3)
-    p.setBiasAccCovariance((imu.accel_random_walk * cfg.bias_walk_scale) ** 2 * i3)
+    p.setBiasOmegaCovariance((imu.gyro_random_walk * cfg.gyro_bias_walk_scale) ** 2 * i3)
+    p.setBiasAccCovariance((imu.accel_random_walk * cfg.accel_bias_walk_scale) ** 2 * i3)
     p.setIntegrationCovariance(cfg.integration_sigma**2 * i3)
     T_body_imu = np.asarray(imu.T_body_imu, dtype=np.float64)
     if not np.allclose(T_body_imu, np.eye(4), atol=1e-9):
