@@ -18,7 +18,15 @@ complementary filter written as two banded least-squares smoothers on the IMU's 
   the accelerometer gives (cost sum h_k |p'' - a_k|^2 tau_pos^4 / dt_gt).
 * gravity: the accelerometer's own, a constant world acceleration solved with the positions
   (a bordered banded system); the world is then rotated (about the origin) so it points along
-  -z, as in every replica.
+  -z, as in every replica (any input tilt, a world upside down included).
+
+Gravity's magnitude is left as the accelerometer has it (returned as `FusedPoses.gravity`, not
+used): 9.8068 m/s^2 on V1_01 with the ground truth's mean accel bias taken off. The positions'
+acceleration is R (f - b_a) + g with that g, so against the 9.81 m/s^2 that the simulated IMU,
+`consistency.py` and the estimator (`imu.gravity`) take, the real accelerometer reads 3 mm/s^2
+off along world z: a near-constant offset while the attitude stays near level, which an
+estimator's accel bias absorbs, and small beside the bias wander below. Scaling the positions
+to 9.81 would change the motion the Vicon measured, so it is not done.
 
 The crossovers: `TAU_ROT_S` = 10 s (the gyro over the ground truth's orientation, which wanders
 0.2-0.3 deg; the result stays 0.25 deg RMS from it on V1_01) and `TAU_POS_S` = 0.3 s (Vicon
@@ -38,12 +46,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_banded
 
+from eurocslam.dataset.synth.imu import integrate_gyro, midpoint_rates
 from eurocslam.dataset.synth.spline import so3_exp_batch, so3_log_batch
 from eurocslam.errors import DatasetError
-from eurocslam.geometry import F64
+from eurocslam.geometry import F64, rotation_between
 
 TAU_ROT_S = 10.0
 TAU_POS_S = 0.3
+MAX_GT_GAP_S = 0.5  # longest ground-truth gap the fusion bridges with the IMU alone
 
 
 @dataclass(frozen=True)
@@ -71,7 +81,8 @@ def _locate(t_ns: np.ndarray, at_ns: np.ndarray) -> tuple[np.ndarray, F64]:
 
 
 def _add_band(ab: F64, nb: int, rows: np.ndarray, cols: np.ndarray, vals: F64) -> None:
-    """Add vals at symmetric (rows, cols) entries of a banded matrix (upper = lower = nb)."""
+    """Add vals at the (rows, cols) entries of a banded matrix in solve_banded's layout
+    (upper = lower = nb); only those entries: the caller adds both (i, j) and (j, i)."""
     np.add.at(ab, (nb + rows - cols, cols), vals)
 
 
@@ -116,6 +127,60 @@ def _smooth(
     return x0 + z[:, None] * c[None, :], c
 
 
+def _check_inputs(
+    t_ns: np.ndarray,
+    gyro: F64,
+    accel: F64,
+    bg: F64,
+    ba: F64,
+    gt_t_ns: np.ndarray,
+    gt_R: F64,
+    gt_p: F64,
+) -> None:
+    """Shapes, strictly increasing stamps, finite values."""
+    n, m = t_ns.shape[0], gt_t_ns.shape[0]
+    for name, a, shape in (
+        ("IMU gyro", gyro, (n, 3)),
+        ("IMU accel", accel, (n, 3)),
+        ("gyro bias", bg, (n, 3)),
+        ("accel bias", ba, (n, 3)),
+        ("ground-truth orientation", gt_R, (m, 3, 3)),
+        ("ground-truth position", gt_p, (m, 3)),
+    ):
+        if np.shape(a) != shape:
+            raise DatasetError(f"{name}: shape {np.shape(a)}, expected {shape}")
+        bad = ~np.isfinite(a).reshape(shape[0], -1).all(axis=1)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise DatasetError(f"{name}: not finite at row {i} (of {shape[0]})")
+    for name, t in (("IMU", t_ns), ("ground-truth", gt_t_ns)):
+        step = np.diff(t)
+        if np.any(step <= 0):
+            i = int(np.flatnonzero(step <= 0)[0]) + 1
+            raise DatasetError(f"{name} timestamps must strictly increase (row {i}: {t[i]} ns)")
+
+
+def _check_coverage(t_ns: np.ndarray, gt_t_ns: np.ndarray, gt_first: int) -> None:
+    """The ground-truth poses within the IMU's span (at least 2) cover it: no gap longer than
+    MAX_GT_GAP_S, no IMU rows more than one (median) ground-truth interval beyond them."""
+    step = np.diff(gt_t_ns)
+    if np.any(step > MAX_GT_GAP_S * 1e9):
+        i = int(np.flatnonzero(step > MAX_GT_GAP_S * 1e9)[0])
+        raise DatasetError(
+            f"gap of {step[i] * 1e-9:.2f} s in the ground truth at "
+            f"{(gt_t_ns[i] - gt_first) * 1e-9:.2f} s after its first pose, within the IMU rows "
+            f"(the fusion bridges at most {MAX_GT_GAP_S:g} s)"
+        )
+    interval = float(np.median(step))
+    lead, trail = int(gt_t_ns[0] - t_ns[0]), int(t_ns[-1] - gt_t_ns[-1])
+    if max(lead, trail) > interval:
+        side, by = ("before", lead) if lead >= trail else ("after", trail)
+        raise DatasetError(
+            f"the IMU rows run {by * 1e-9:.3f} s {side} the ground truth's poses (more than "
+            f"one ground-truth interval, {interval * 1e-9:.3f} s): crop them to its span"
+        )
+
+
 def fuse_imu_groundtruth(
     t_ns: np.ndarray,
     gyro: F64,
@@ -130,31 +195,33 @@ def fuse_imu_groundtruth(
     tau_pos_s: float = TAU_POS_S,
 ) -> FusedPoses:
     """Poses at the IMU stamps `t_ns` that the IMU (minus biases bg, ba, per sample) measures
-    at high frequency and the ground truth (gt_t_ns, gt_R, gt_p) gives at low frequency."""
+    at high frequency and the ground truth (gt_t_ns, gt_R, gt_p) gives at low frequency.
+
+    The IMU rows must lie within the ground truth's span (give or take one ground-truth
+    interval: the caller crops them), with no ground-truth gap over `MAX_GT_GAP_S` between
+    them. Raises DatasetError (messages name no file: the caller adds it) on inputs that break
+    this, on stamps that do not strictly increase and on values that are not finite."""
+    _check_inputs(t_ns, gyro, accel, bg, ba, gt_t_ns, gt_R, gt_p)
     n = t_ns.size
     inside = (gt_t_ns >= t_ns[0]) & (gt_t_ns <= t_ns[-1])
     if n < 3 or int(inside.sum()) < 2:
         raise DatasetError("the IMU rows and the ground truth barely overlap in time")
+    gt_first = int(gt_t_ns[0])
     gt_t_ns, gt_R, gt_p = gt_t_ns[inside], gt_R[inside], gt_p[inside]
+    _check_coverage(t_ns, gt_t_ns, gt_first)
     h = np.diff(t_ns).astype(np.float64) * 1e-9
     dt_gt = float(np.median(np.diff(gt_t_ns))) * 1e-9
     k, u = _locate(t_ns, gt_t_ns)
 
     # ---- rotation ----------------------------------------------------------------------------
-    w = 0.5 * (gyro[1:] + gyro[:-1]) - 0.5 * (bg[1:] + bg[:-1])
-    steps = so3_exp_batch(w * h[:, None])
-    Rg = np.empty((n, 3, 3))
-    Rg[0] = np.eye(3)
-    for i in range(n - 1):
-        Rg[i + 1] = Rg[i] @ steps[i]
-    uu, _, vt = np.linalg.svd(Rg)
-    Rg = uu @ vt
+    w = midpoint_rates(gyro, bg)
+    Rg = integrate_gyro(t_ns, gyro, bg)
     Rg_at = Rg[k] @ so3_exp_batch(w[k] * (u * h[k])[:, None])  # at the ground-truth stamps
     # start where the ground truth starts, then the (small) world-frame corrections
     Rg = (gt_R[0] @ Rg_at[0].T) @ Rg
     Rg_at = (gt_R[0] @ Rg_at[0].T) @ Rg_at
     d = so3_log_batch(gt_R @ np.swapaxes(Rg_at, 1, 2))
-    if float(np.max(np.linalg.norm(d, axis=1))) > np.radians(20.0):
+    if not float(np.max(np.linalg.norm(d, axis=1))) <= np.radians(20.0):
         raise DatasetError(
             "the real gyro (minus the ground truth's bias) drifts more than 20 deg from the "
             "ground truth: wrong IMU file, or a ground truth without gyro bias columns"
@@ -173,10 +240,9 @@ def fuse_imu_groundtruth(
     p, g = _smooth(n, k, u, gt_p, coef2, np.arange(n - 2), f_world[1:-1], wp, free_offset=True)
 
     # ---- gravity-aligned world -----------------------------------------------------------------
-    down = g / np.linalg.norm(g)
-    axis = np.cross(down, [0.0, 0.0, -1.0])
-    s = float(np.linalg.norm(axis))
-    Q = np.eye(3) if s < 1e-15 else so3_exp_batch((axis / s * np.arcsin(s))[None])[0]
+    Q = rotation_between(g, np.array([0.0, 0.0, -1.0]))
+    uq, _, vq = np.linalg.svd(Q)  # its closed form loses orthogonality near 180 deg
+    Q = uq @ vq
     y_at = y[k] * (1.0 - u)[:, None] + y[k + 1] * u[:, None]
     rot_dev = np.linalg.norm(
         so3_log_batch(gt_R @ np.swapaxes(so3_exp_batch(y_at) @ Rg_at, 1, 2)), axis=1

@@ -268,7 +268,10 @@ def _imu_spline(
         bg, ba = np.mean(gyro - w, axis=0), np.zeros(3)
     bg_n = np.broadcast_to(bg, gyro.shape)
     ba_n = np.broadcast_to(ba, accel.shape)
-    fused = fuse_imu_groundtruth(t_imu, gyro, accel, bg_n, ba_n, gt.t_ns, R_in, gt.p)
+    try:
+        fused = fuse_imu_groundtruth(t_imu, gyro, accel, bg_n, ba_n, gt.t_ns, R_in, gt.p)
+    except DatasetError as e:
+        raise DatasetError(f"{gt.path} with the given IMU rows: {e}") from None
     keep = (t_imu >= lo) & (t_imu <= hi)
     t = (t_imu[keep] - t0_ns).astype(np.float64) * 1e-9
     q = rot_to_quat_wxyz(fused.R[keep])
