@@ -122,6 +122,69 @@ def test_consistency_measure_of_a_noise_free_sequence(ideal_seq: Path) -> None:
     assert main([]) == 2
 
 
+def _sequence_copy(seq: Path, out: Path, imu_fn=None, gt_fn=None) -> Path:  # type: ignore[no-untyped-def]
+    """The IMU and ground-truth CSVs of `seq` under out/mav0, each (t_ns, values) optionally
+    changed by imu_fn / gt_fn."""
+    from eurocslam.dataset.asl import read_numeric_csv
+
+    for sub, ncols, fn in (("imu0", 7, imu_fn), ("state_groundtruth_estimate0", 17, gt_fn)):
+        tab = read_numeric_csv(seq / "mav0" / sub / "data.csv", ncols)
+        t, v = (tab.t_ns, tab.values) if fn is None else fn(tab.t_ns.copy(), tab.values.copy())
+        (out / "mav0" / sub).mkdir(parents=True)
+        rows = "".join(
+            f"{ti}," + ",".join(f"{x:.17g}" for x in vi) + "\n" for ti, vi in zip(t, v, strict=True)
+        )
+        (out / "mav0" / sub / "data.csv").write_text("#t\n" + rows)
+    return out
+
+
+def test_consistency_measure_sees_a_bias_offset(ideal_seq: Path, tmp_path: Path) -> None:
+    """Positive control: 1e-3 rad/s more gyro bias than the ground truth says gives about
+    degrees(1e-3 w) over a window of w s, 0.02 m/s^2 more accel bias about 0.02 w m/s."""
+    from eurocslam.dataset.synth.consistency import sequence_mismatch
+
+    def offset(t, v):  # type: ignore[no-untyped-def]
+        v[:, 0:3] += [0.0, 1e-3, 0.0]
+        v[:, 3:6] += [0.0, 0.0, 0.02]
+        return t, v
+
+    seq = _sequence_copy(ideal_seq, tmp_path / "biased", imu_fn=offset)
+    wins = (0.05, 0.2, 1.0)
+    m = sequence_mismatch(seq, windows_s=wins)
+    np.testing.assert_allclose(m.gyro_deg, np.degrees(1e-3 * np.array(wins)), rtol=0.03)
+    np.testing.assert_allclose(m.dv_mps, 0.02 * np.array(wins), rtol=0.03)
+
+
+def test_consistency_tool_errors(
+    ideal_seq: Path, v101_micro: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A ground truth not at the IMU's stamps (every 10th, none, a real 20 Hz one) is refused by
+    name, not measured on what stamps match; a window longer than the sequence prints "-"; CLI
+    errors are one line."""
+    from eurocslam.dataset.synth.consistency import main, sequence_mismatch
+    from eurocslam.errors import DatasetError
+
+    sparse = _sequence_copy(ideal_seq, tmp_path / "sparse", gt_fn=lambda t, v: (t[::10], v[::10]))
+    gt_csv = sparse / "mav0" / "state_groundtruth_estimate0" / "data.csv"
+    with pytest.raises(DatasetError, match=rf"^{gt_csv}: ground truth at 41 of the 401 IMU"):
+        sequence_mismatch(sparse)
+    shifted = _sequence_copy(ideal_seq, tmp_path / "shifted", gt_fn=lambda t, v: (t + 1, v))
+    with pytest.raises(DatasetError, match="ground truth at 0 of the 400 IMU stamps"):
+        sequence_mismatch(shifted)
+    with pytest.raises(DatasetError, match="ground truth at 2317 of the 28941 IMU stamps"):
+        sequence_mismatch(v101_micro)
+    capsys.readouterr()
+    for bad in (tmp_path / "nonexistent", sparse):
+        assert main([str(bad)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("consistency: error: ") and len(err.splitlines()) == 1, err
+    # the built-in sequence is 2 s: no 5 s window
+    assert main([str(ideal_seq)]) == 0
+    row = capsys.readouterr().out.splitlines()[-1].split()
+    assert row[1:] == [*row[1:4], "-", "|", *row[6:9], "-"]
+    assert all(float(x) < 1e-3 for x in row[1:4] + row[6:9])
+
+
 def test_imu_noise_and_biases_follow_the_calibration() -> None:
     from eurocslam.dataset.calib import default_rig
     from eurocslam.dataset.synth.imu import ideal_imu, simulate_imu
@@ -281,23 +344,14 @@ def test_replica_follows_real_groundtruth(euroc_dir: Path) -> None:
 
 
 def _window_mismatch(t_ns, gyro, accel, bg, ba, st, n):  # type: ignore[no-untyped-def]
-    """Median over windows of n IMU intervals: angle [deg] between the integrated gyro and the
-    trajectory's relative rotation, and |delta-v| error [m/s] of the accelerometer integrated
-    with the trajectory's rotation (world z up, g = 9.81)."""
-    dt = np.diff(t_ns) * 1e-9
-    w = (gyro[1:] + gyro[:-1]) / 2 - (bg[1:] + bg[:-1]) / 2
-    steps = so3_exp_batch(w * dt[:, None])
-    f = np.einsum("nij,nj->ni", st.R, accel - ba) + GRAVITY
-    dv = np.concatenate([np.zeros((1, 3)), np.cumsum((f[1:] + f[:-1]) / 2 * dt[:, None], 0)])
-    ang, dverr = [], []
-    for i in range(0, len(t_ns) - n, 7):
-        R = np.eye(3)
-        for k in range(i, i + n):
-            R = R @ steps[k]
-        rel = st.R[i].T @ st.R[i + n]
-        ang.append(np.degrees(np.linalg.norm(so3_log_batch((rel.T @ R)[None]))))
-        dverr.append(np.linalg.norm(dv[i + n] - dv[i] - (st.v[i + n] - st.v[i])))
-    return float(np.median(ang)), float(np.median(dverr))
+    """consistency.imu_mismatch over one window of n IMU intervals (constant biases bg, ba):
+    (median angle [deg], median |delta-v| error [m/s])."""
+    from eurocslam.dataset.synth.consistency import imu_mismatch
+
+    assert np.all(bg == bg[0]) and np.all(ba == ba[0])
+    win = n * float(np.median(np.diff(t_ns))) * 1e-9
+    m = imu_mismatch(t_ns, gyro, accel, bg[0], ba[0], st.R, st.v, windows_s=(win,))
+    return m.gyro_deg[0], m.dv_mps[0]
 
 
 def test_imu_groundtruth_fusion_recovers_the_motion() -> None:

@@ -3,13 +3,17 @@
 For windows of a few lengths, starting every few samples: the angle between the gyro's rotation
 (minus the ground truth's mean gyro bias, midpoint rule) and the ground truth's relative
 rotation, and the |delta-v| error of the accelerometer (minus the mean accel bias) rotated by the
-ground-truth orientation, with gravity 9.81 m/s^2 along -z. Medians over the windows. Biases are
+ground-truth orientation, with gravity `trajectory.GRAVITY` (9.81 m/s^2 along -z). Medians over
+the windows ("-": none, the sequence is shorter than the window). Biases are
 taken constant (the means of the bias columns): that is what an estimator whose bias is a slow
 random walk can follow. Over 0.05/0.2/1/5 s, the full-length simulated-IMU replicas of V1_01,
 MH_01 and V2_02 give 0.0033/0.0068/0.016-0.018/0.040-0.057 deg and 1.2/4/18-19/81-90 mm/s (their
 white noise and bias random walk); V1_01's real-IMU replica 0.0011/0.0029/0.014/0.066 deg and
 2.8/7.8/36/145 mm/s (a spline through the ground truth alone gave 0.061/0.081/0.146/0.329 deg
 and 7.2/13.4/50/198 mm/s).
+
+The measure needs the ground truth at the IMU's own stamps (it rotates every accelerometer
+sample by it), as a synthetic sequence writes it; a real sequence's (V1_01: 20 Hz) is refused.
 
     .venv/bin/python -m eurocslam.dataset.synth.consistency SEQUENCE [SEQUENCE ...]
 """
@@ -22,17 +26,21 @@ from pathlib import Path
 
 import numpy as np
 
-from eurocslam.dataset.synth.spline import so3_exp_batch, so3_log_batch
+from eurocslam.dataset.synth.imu import integrate_gyro
+from eurocslam.dataset.synth.spline import so3_log_batch
+from eurocslam.dataset.synth.trajectory import GRAVITY
+from eurocslam.errors import DatasetError, EurocSlamError
 from eurocslam.geometry import F64, quat_wxyz_to_rot
 
 WINDOWS_S = (0.05, 0.2, 1.0, 5.0)
+MIN_COVERAGE = 0.95  # share of the IMU stamps the ground truth must have a row at
 
 
 @dataclass(frozen=True)
 class Mismatch:
     windows_s: tuple[float, ...]
-    gyro_deg: tuple[float, ...]  # median angle per window length
-    dv_mps: tuple[float, ...]  # median |delta-v| error per window length
+    gyro_deg: tuple[float, ...]  # median angle per window length (nan: no such window)
+    dv_mps: tuple[float, ...]  # median |delta-v| error per window length (nan: no such window)
 
 
 def imu_mismatch(
@@ -46,24 +54,23 @@ def imu_mismatch(
     *,
     windows_s: tuple[float, ...] = WINDOWS_S,
     stride: int = 7,
-    gravity: float = 9.81,
 ) -> Mismatch:
     """The measure on samples: IMU (t_ns, gyro, accel), constant biases bg, ba (3,), ground
-    truth R_world_body (N, 3, 3) and world velocity v (N, 3) at the same stamps."""
+    truth R_world_body (N, 3, 3) and world velocity v (N, 3) at the same stamps. A window
+    longer than the samples gives nan."""
     dt = np.diff(t_ns).astype(np.float64) * 1e-9
-    w = 0.5 * (gyro[1:] + gyro[:-1]) - bg
-    steps = so3_exp_batch(w * dt[:, None])
-    P = np.empty((t_ns.size, 3, 3))
-    P[0] = np.eye(3)
-    for k in range(dt.size):
-        P[k + 1] = P[k] @ steps[k]
-    f = np.einsum("nij,nj->ni", R, accel - ba) + np.array([0.0, 0.0, -gravity])
+    P = integrate_gyro(t_ns, gyro, bg)
+    f = np.einsum("nij,nj->ni", R, accel - ba) + GRAVITY
     dv = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (f[1:] + f[:-1]) * dt[:, None], 0)])
     period = float(np.median(dt))
     gy, av = [], []
     for win in windows_s:
         n = max(1, round(win / period))
         i = np.arange(0, t_ns.size - n, stride)
+        if i.size == 0:
+            gy.append(float("nan"))
+            av.append(float("nan"))
+            continue
         j = i + n
         imu_rel = np.swapaxes(P[i], 1, 2) @ P[j]
         ref_rel = np.swapaxes(R[i], 1, 2) @ R[j]
@@ -75,13 +82,29 @@ def imu_mismatch(
 
 
 def sequence_mismatch(seq_dir: Path, windows_s: tuple[float, ...] = WINDOWS_S) -> Mismatch:
-    """The measure on an ASL folder with a 17-column ground truth (a synthetic sequence)."""
+    """The measure on an ASL folder with a 17-column ground truth at the IMU's stamps (a
+    synthetic sequence): the IMU rows within the ground truth's span, which must have a ground
+    truth row at `MIN_COVERAGE` of them or more (those it misses are dropped)."""
     from eurocslam.dataset.asl import read_numeric_csv
 
     mav0 = Path(seq_dir) / "mav0"
+    if not mav0.is_dir():
+        raise DatasetError(f"{seq_dir}: not a sequence folder (no mav0/)")
     imu = read_numeric_csv(mav0 / "imu0" / "data.csv", 7)
     gt = read_numeric_csv(mav0 / "state_groundtruth_estimate0" / "data.csv", 17)
-    t = np.intersect1d(imu.t_ns, gt.t_ns)
+    for tab in (imu, gt):
+        step = np.diff(tab.t_ns)
+        if np.any(step <= 0):
+            k = int(np.flatnonzero(step <= 0)[0]) + 1
+            raise DatasetError(f"{tab.path}:{tab.line_numbers[k]}: timestamps must increase")
+    span = imu.t_ns[(imu.t_ns >= gt.t_ns[0]) & (imu.t_ns <= gt.t_ns[-1])] if gt.t_ns.size else []
+    t = np.intersect1d(span, gt.t_ns)
+    if t.size < 2 or t.size < MIN_COVERAGE * len(span):
+        raise DatasetError(
+            f"{gt.path}: ground truth at {t.size} of the {len(span)} IMU stamps within its span "
+            f"({imu.t_ns.size} IMU rows in all); the measure needs it at the IMU's own stamps "
+            f"({100 * MIN_COVERAGE:g} % or more), as a synthetic sequence writes it"
+        )
     a = imu.values[np.searchsorted(imu.t_ns, t)]
     g = gt.values[np.searchsorted(gt.t_ns, t)]
     return imu_mismatch(
@@ -104,9 +127,14 @@ def main(argv: list[str] | None = None) -> int:
     head = " ".join(f"{w:g}s" for w in WINDOWS_S)
     print(f"{'sequence':<40} gyro mismatch deg ({head}) | delta-v error mm/s ({head})")
     for p in paths:
-        m = sequence_mismatch(Path(p))
-        gy = " ".join(f"{x:.4f}" for x in m.gyro_deg)
-        dv = " ".join(f"{1000 * x:.1f}" for x in m.dv_mps)
+        try:
+            m = sequence_mismatch(Path(p))
+        except EurocSlamError as e:
+            one_line = " ".join(str(e).split()) or type(e).__name__
+            print(f"consistency: error: {one_line}", file=sys.stderr)
+            return e.exit_code
+        gy = " ".join("-" if np.isnan(x) else f"{x:.4f}" for x in m.gyro_deg)
+        dv = " ".join("-" if np.isnan(x) else f"{1000 * x:.1f}" for x in m.dv_mps)
         print(f"{Path(p).name:<40} {gy} | {dv}")
     return 0
 
