@@ -3,7 +3,7 @@
 ORB alone clusters its keypoints on the most textured patch of the image. Here ORB detects a
 surplus of candidates (low FAST threshold), then a grid keeps them round-robin by response:
 every cell's best keypoint first, then every cell's second best, and so on until `n_features`.
-Descriptors are computed only for the kept keypoints.
+Descriptors come from the same pass (one pyramid), the kept ones ordered by pyramid level.
 """
 
 from __future__ import annotations
@@ -96,23 +96,24 @@ class OrbExtractor:
 
     def extract(self, img: U8) -> Features:
         c = self.config
-        kps = self._orb.detect(img, None)
+        # one pass: descriptors for every candidate cost less than a second pass over the kept
+        # ones (`compute` builds the pyramid again)
+        kps, desc = self._orb.detectAndCompute(img, None)
         if len(kps) < c.n_features and self._orb_low is not None:
-            kps = self._orb_low.detect(img, None)  # low texture: a lower FAST threshold
-        if not kps:
+            kps, desc = self._orb_low.detectAndCompute(img, None)  # low texture: lower FAST
+        if not kps or desc is None:
             return Features.empty()
+        n = len(kps)
         uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)
-        resp = np.fromiter((k.response for k in kps), dtype=np.float64, count=len(kps))
+        resp = np.fromiter((k.response for k in kps), dtype=np.float64, count=n)
+        octave = np.fromiter((k.octave for k in kps), dtype=np.int32, count=n)
         keep = bucket_select(
             uv, resp, c.n_features, self.width, self.height, c.grid_cols, c.grid_rows
         )
-        kept = [kps[i] for i in keep]
-        kept, desc = self._orb.compute(img, kept)
-        if desc is None or not kept:
-            return Features.empty()
+        keep = keep[np.argsort(octave[keep], kind="stable")]  # by pyramid level, like `compute`
         return Features(
-            uv=cv2.KeyPoint_convert(kept).astype(np.float64).reshape(-1, 2),
-            octave=np.fromiter((k.octave for k in kept), dtype=np.int32, count=len(kept)),
-            response=np.fromiter((k.response for k in kept), dtype=np.float64, count=len(kept)),
-            desc=np.ascontiguousarray(desc, dtype=np.uint8),
+            uv=uv[keep],
+            octave=octave[keep],
+            response=resp[keep],
+            desc=np.ascontiguousarray(desc[keep], dtype=np.uint8),
         )
