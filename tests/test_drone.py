@@ -172,3 +172,17 @@ def test_drone_is_level_when_the_real_drone_rests_on_the_floor(v101_micro) -> No
     assert np.degrees(np.arccos(up_world[:, 2])).max() < 4.0
     # forward (the drone's x) is the cameras' viewing direction, body z, levelled
     assert R_BODY_DRONE[:, 0] @ np.array([0.0, 0.0, 1.0]) > 0.9
+
+
+@pytest.mark.parametrize(
+    ("frame_id", "color", "ns"),
+    [("body", ESTIMATE_COLOR, "drone"), ("gt_body", GROUNDTRUTH_COLOR, "drone_gt")],
+)
+def test_cached_encoding_equals_a_fresh_one(frame_id: str, color: tuple, ns: str) -> None:
+    from eurocslam.io import ros2
+
+    for t in (0, 1, 999_999_999, 1_000_000_007, T0, T0 + 50_000_000):
+        fresh = ros2.marker_array(drone.drone_marker_list(frame_id, t, color, ns))
+        assert drone_markers(frame_id, t, color, ns) == fresh
+    msg = _decode(drone_markers(frame_id, T0 + 7, color, ns))
+    assert {m.header.stamp.nanosec for m in msg.markers} == {(T0 + 7) % 1_000_000_000}

@@ -172,7 +172,11 @@ def propeller_points(t_ns: int, spin_hz: float = DEFAULT_SPIN_HZ) -> F64:
 
 def firefly_parts(t_ns: int, color: Rgba, spin_hz: float = DEFAULT_SPIN_HZ) -> list[Part]:
     """The model's markers at time `t_ns` (only the propellers depend on it)."""
-    props = Part(
+    return [*_static_in_body(color)[0], _props(t_ns, spin_hz)]
+
+
+def _props(t_ns: int, spin_hz: float) -> Part:
+    return Part(
         "props",
         LINE_LIST,
         np.eye(4),
@@ -180,13 +184,37 @@ def firefly_parts(t_ns: int, color: Rgba, spin_hz: float = DEFAULT_SPIN_HZ) -> l
         _DARK,
         points=propeller_points(t_ns, spin_hz),
     )
-    return [*_static_in_body(color)[0], props]
 
 
 @lru_cache(maxsize=16)
 def _static_in_body(color: Rgba) -> tuple[list[Part], list[F64]]:
     parts = _static_parts(color)
     return parts, [T_BODY_DRONE @ p.T_drone_part for p in parts]
+
+
+def _rgba(frame_id: str, color: Rgba) -> Rgba:
+    if not frame_id:
+        raise ValueError("drone_markers: frame_id must not be empty")
+    if len(color) != 4 or not all(0.0 <= c <= 1.0 for c in color):
+        raise ValueError(f"drone_markers: color must be 4 values in 0..1, got {color!r}")
+    return (float(color[0]), float(color[1]), float(color[2]), float(color[3]))
+
+
+def _marker(frame_id: str, t_ns: int, ns: str, i: int, part: Part, T_body_part: F64) -> ros2.Marker:
+    return ros2.Marker(
+        t_ns=int(t_ns),
+        frame_id=frame_id,
+        ns=ns,
+        id=i,
+        type=part.type,
+        pose=T_body_part,
+        scale=part.scale,
+        color=part.color,
+        action=ADD,
+        frame_locked=True,
+        points=part.points,
+        colors=part.colors,
+    )
 
 
 def drone_marker_list(
@@ -197,30 +225,28 @@ def drone_marker_list(
     spin_hz: float = DEFAULT_SPIN_HZ,
 ) -> list[ros2.Marker]:
     """The Firefly's markers (ids 0..N-1 in `ns`), posed in the body frame `frame_id`."""
-    if not frame_id:
-        raise ValueError("drone_markers: frame_id must not be empty")
-    if len(color) != 4 or not all(0.0 <= c <= 1.0 for c in color):
-        raise ValueError(f"drone_markers: color must be 4 values in 0..1, got {color!r}")
-    rgba: Rgba = (float(color[0]), float(color[1]), float(color[2]), float(color[3]))
+    rgba = _rgba(frame_id, color)
     parts = firefly_parts(t_ns, rgba, spin_hz)
     poses = [*_static_in_body(rgba)[1], T_BODY_DRONE]  # the propellers' points are in `drone`
     return [
-        ros2.Marker(
-            t_ns=int(t_ns),
-            frame_id=frame_id,
-            ns=ns,
-            id=i,
-            type=part.type,
-            pose=T_body_part,
-            scale=part.scale,
-            color=part.color,
-            action=ADD,
-            frame_locked=True,
-            points=part.points,
-            colors=part.colors,
-        )
+        _marker(frame_id, t_ns, ns, i, part, T_body_part)
         for i, (part, T_body_part) in enumerate(zip(parts, poses, strict=True))
     ]
+
+
+@lru_cache(maxsize=16)
+def _static_cdr(frame_id: str, color: Rgba, ns: str) -> tuple[bytes, tuple[int, ...]]:
+    """The MarkerArray's CDR up to the propellers (marker count and the static markers), and
+    the offsets of their stamps: only those and the propellers change from call to call."""
+    parts, poses = _static_in_body(color)
+    out = ros2.CdrWriter()
+    out.u32(len(parts) + 1)
+    stamps = []
+    for i, (part, T_body_part) in enumerate(zip(parts, poses, strict=True)):
+        out.align(4)
+        stamps.append(len(out.buf))
+        ros2.write_marker(out, _marker(frame_id, 0, ns, i, part, T_body_part))
+    return bytes(out.buf), tuple(stamps)
 
 
 def drone_markers(
@@ -238,5 +264,16 @@ def drone_markers(
     (`ESTIMATE_COLOR`, `GROUNDTRUTH_COLOR`). `ns`: marker namespace; use different ones for the
     estimate and the ground truth so both drones exist side by side. Marker ids are stable, so
     each message replaces the previous one; `frame_locked` makes it follow the tf of `frame_id`.
+    The same bytes as `ros2.marker_array(drone_marker_list(...))`, built from a cached encoding
+    of the static markers (a call per frame and drone is on the tracking thread's path).
     """
-    return ros2.marker_array(drone_marker_list(frame_id, t_ns, color, ns, spin_hz))
+    rgba = _rgba(frame_id, color)
+    static, stamps = _static_cdr(frame_id, rgba, ns)
+    out = ros2.CdrWriter()
+    out.buf = bytearray(static)
+    stamp = ros2.stamp_bytes(t_ns)
+    for off in stamps:
+        out.buf[off : off + len(stamp)] = stamp
+    props = _props(t_ns, spin_hz)
+    ros2.write_marker(out, _marker(frame_id, t_ns, ns, len(stamps), props, T_BODY_DRONE))
+    return out.getvalue()

@@ -84,6 +84,11 @@ _TIME = struct.Struct("<iI")
 _SEC = 1_000_000_000
 
 
+def stamp_bytes(t_ns: int) -> bytes:
+    """The CDR bytes of a `builtin_interfaces/Time` (sec, nanosec), 4-aligned in a message."""
+    return _TIME.pack(*split_ns(t_ns))
+
+
 def split_ns(t_ns: int) -> tuple[int, int]:
     """(sec, nanosec) of a ROS time from int64 nanoseconds."""
     t = int(t_ns)
@@ -580,7 +585,8 @@ class Marker:
     mesh_resource: str = ""
 
 
-def _write_marker(out: CdrWriter, m: Marker) -> None:
+def write_marker(out: CdrWriter, m: Marker) -> None:
+    """Append one `visualization_msgs/Marker` to `out` (for arrays built piecewise)."""
     out.header(m.t_ns, m.frame_id)
     out.string(m.ns)
     out.i32(m.id)
@@ -614,7 +620,7 @@ def _write_marker(out: CdrWriter, m: Marker) -> None:
 
 def marker(m: Marker) -> bytes:
     out = CdrWriter()
-    _write_marker(out, m)
+    write_marker(out, m)
     return out.getvalue()
 
 
@@ -622,7 +628,7 @@ def marker_array(markers: Sequence[Marker]) -> bytes:
     out = CdrWriter()
     out.u32(len(markers))
     for m in markers:
-        _write_marker(out, m)
+        write_marker(out, m)
     return out.getvalue()
 
 
