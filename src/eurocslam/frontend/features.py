@@ -9,6 +9,7 @@ Descriptors come from the same pass (one pyramid), the kept ones ordered by pyra
 from __future__ import annotations
 
 from dataclasses import dataclass
+from operator import attrgetter
 
 import cv2
 import numpy as np
@@ -17,6 +18,8 @@ from numpy.typing import NDArray
 from eurocslam.dataset.types import U8
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.geometry import F64
+
+_RESPONSE = attrgetter("response")
 
 
 @dataclass(frozen=True)
@@ -103,17 +106,17 @@ class OrbExtractor:
             kps, desc = self._orb_low.detectAndCompute(img, None)  # low texture: lower FAST
         if not kps or desc is None:
             return Features.empty()
-        n = len(kps)
         uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)
-        resp = np.fromiter((k.response for k in kps), dtype=np.float64, count=n)
-        octave = np.fromiter((k.octave for k in kps), dtype=np.int32, count=n)
+        resp = np.array(list(map(_RESPONSE, kps)), dtype=np.float64)
         keep = bucket_select(
             uv, resp, c.n_features, self.width, self.height, c.grid_cols, c.grid_rows
         )
-        keep = keep[np.argsort(octave[keep], kind="stable")]  # by pyramid level, like `compute`
+        octave = np.array([kps[i].octave for i in keep], dtype=np.int32)
+        by_level = np.argsort(octave, kind="stable")  # ordered by pyramid level, like `compute`
+        keep, octave = keep[by_level], octave[by_level]
         return Features(
             uv=uv[keep],
-            octave=octave[keep],
+            octave=octave,
             response=resp[keep],
             desc=np.ascontiguousarray(desc[keep], dtype=np.uint8),
         )
