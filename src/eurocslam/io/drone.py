@@ -4,7 +4,8 @@ Made from primitives, so nothing is fetched from the network and no mesh is ship
 six arms (the two front ones red), six motors with translucent rotor discs and two-bladed
 propellers that spin, and the VI-Sensor box at the front: seven markers (body, canopy and sensor
 box as primitives; arms, motors, rotor discs and propellers as one LINE_LIST, SPHERE_LIST,
-TRIANGLE_LIST and LINE_LIST each), so one message is small (~8 KB) and quick to build (~0.3 ms, static markers cached).
+TRIANGLE_LIST and LINE_LIST each), so one message is small (~8 KB) and quick to build (~0.3 ms:
+the static markers' encoding is cached).
 Dimensions follow the Firefly model of rotors_simulator (arm length 0.215 m, rotor radius
 0.10 m, rotors at 30 + 60k degrees).
 
