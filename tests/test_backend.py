@@ -57,14 +57,22 @@ def _ns(t: float) -> int:
 
 
 def test_params_use_continuous_time_densities() -> None:
-    p = make_params(RIG.imu, ImuConfig(gyro_noise_scale=2.0))
+    p = make_params(
+        RIG.imu,
+        ImuConfig(gyro_noise_scale=2.0, gyro_bias_walk_scale=3.0, accel_bias_walk_scale=5.0),
+    )
     np.testing.assert_allclose(
         p.getGyroscopeCovariance(), (2.0 * RIG.imu.gyro_noise_density) ** 2 * np.eye(3)
     )
     np.testing.assert_allclose(
         p.getAccelerometerCovariance(), RIG.imu.accel_noise_density**2 * np.eye(3)
     )
-    np.testing.assert_allclose(p.getBiasOmegaCovariance(), RIG.imu.gyro_random_walk**2 * np.eye(3))
+    np.testing.assert_allclose(
+        p.getBiasOmegaCovariance(), (3.0 * RIG.imu.gyro_random_walk) ** 2 * np.eye(3)
+    )
+    np.testing.assert_allclose(
+        p.getBiasAccCovariance(), (5.0 * RIG.imu.accel_random_walk) ** 2 * np.eye(3)
+    )
     np.testing.assert_allclose(p.n_gravity, [0.0, 0.0, -9.81])
 
 

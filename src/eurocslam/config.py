@@ -28,8 +28,10 @@ class ImuConfig:
     # multipliers on the sensor.yaml noise densities (datasheet values are optimistic)
     gyro_noise_scale: float = 1.0
     accel_noise_scale: float = 1.0
-    gyro_bias_walk_scale: float = 1.0  # multipliers on the sensor.yaml bias random walks
-    accel_bias_walk_scale: float = 1.0
+    # multipliers on the sensor.yaml bias random walks: the real V1_01 IMU's biases wander
+    # faster than its datasheet random walk (README, V1_01); neutral on simulated IMUs
+    gyro_bias_walk_scale: float = 10.0
+    accel_bias_walk_scale: float = 10.0
     integration_sigma: float = 1e-4  # continuous-time position integration noise
     max_gap_s: float = 0.05  # longer gaps between IMU samples count as an IMU dropout
 
