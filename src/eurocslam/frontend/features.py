@@ -3,7 +3,9 @@
 ORB alone clusters its keypoints on the most textured patch of the image. Here ORB detects a
 surplus of candidates (low FAST threshold), then a grid keeps them round-robin by response:
 every cell's best keypoint first, then every cell's second best, and so on until `n_features`.
-Descriptors come from the same pass (one pyramid), the kept ones ordered by pyramid level.
+Descriptors are computed only for the kept keypoints (`detectAndCompute` on every candidate
+measured no faster: the blur and descriptors of 2.5x the keypoints cost what the second pyramid
+saves).
 """
 
 from __future__ import annotations
@@ -99,24 +101,22 @@ class OrbExtractor:
 
     def extract(self, img: U8) -> Features:
         c = self.config
-        # one pass: descriptors for every candidate cost less than a second pass over the kept
-        # ones (`compute` builds the pyramid again)
-        kps, desc = self._orb.detectAndCompute(img, None)
+        kps = self._orb.detect(img, None)
         if len(kps) < c.n_features and self._orb_low is not None:
-            kps, desc = self._orb_low.detectAndCompute(img, None)  # low texture: lower FAST
-        if not kps or desc is None:
+            kps = self._orb_low.detect(img, None)  # low texture: a lower FAST threshold
+        if not kps:
             return Features.empty()
         uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)
         resp = np.array(list(map(_RESPONSE, kps)), dtype=np.float64)
         keep = bucket_select(
             uv, resp, c.n_features, self.width, self.height, c.grid_cols, c.grid_rows
         )
-        octave = np.array([kps[i].octave for i in keep], dtype=np.int32)
-        by_level = np.argsort(octave, kind="stable")  # ordered by pyramid level, like `compute`
-        keep, octave = keep[by_level], octave[by_level]
+        kept, desc = self._orb.compute(img, [kps[i] for i in keep])
+        if desc is None or not kept:
+            return Features.empty()
         return Features(
-            uv=uv[keep],
-            octave=octave,
-            response=resp[keep],
-            desc=np.ascontiguousarray(desc[keep], dtype=np.uint8),
+            uv=cv2.KeyPoint_convert(kept).astype(np.float64).reshape(-1, 2),
+            octave=np.array([k.octave for k in kept], dtype=np.int32),
+            response=np.array(list(map(_RESPONSE, kept)), dtype=np.float64),
+            desc=np.ascontiguousarray(desc, dtype=np.uint8),
         )
