@@ -22,7 +22,7 @@ class FrontendConfig:
     grid_rows: int = 6
     orb_scale_factor: float = 1.2  # pyramid scale between levels
     # 8 levels as ORB-SLAM (scale range 3.6x): with 6, ORB was faster but visual-only drifted
-    # on the machine halls (full-length MH_04 replica 0.118 m instead of 0.042)
+    # on the machine halls (full-length MH_04 replica 0.118 m instead of 0.066)
     orb_levels: int = 8
     # FAST threshold. Detection time grows with the number of raw corners (rendered replicas
     # give ~30k at 10; ORB then takes 1.5x as long as at 20): 20 as in ORB-SLAM, and a second
