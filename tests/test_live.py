@@ -436,6 +436,13 @@ def test_play_mcap_pause_and_seek_from_the_viewer(run_mcap: Path) -> None:
 
 
 # ---- the command, as a user runs it ---------------------------------------------------------
+def _sigint_default() -> None:
+    # a child inherits an ignored SIGINT (pytest started in the background by a
+    # non-interactive shell), and Python then never raises KeyboardInterrupt: the Ctrl-C
+    # test would wait forever. Restore the default so Python installs its handler.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start_play(mcap: Path, *extra: str) -> tuple[subprocess.Popen, str]:
     proc = subprocess.Popen(
         [sys.executable, "-m", "eurocslam.cli", "play", str(mcap), "--live", "--port", "0", *extra],
@@ -443,6 +450,7 @@ def _start_play(mcap: Path, *extra: str) -> tuple[subprocess.Popen, str]:
         stderr=subprocess.PIPE,
         text=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        preexec_fn=_sigint_default if os.name == "posix" else None,
     )
     deadline = time.monotonic() + 30
     lines = []
