@@ -281,3 +281,34 @@ def test_stereo_noise_follows_the_keypoint_scale() -> None:
     # a small error: inside the Huber threshold, whitening is just 1 / sigma
     sigmas = sorted({round(0.01 / f.noiseModel().whiten(np.full(3, 0.01))[0], 6) for f in stereo})
     assert sigmas == [round(1.2**k, 6) for k in range(4)]
+
+
+def test_final_batch_joins_a_landmark_the_smoother_let_go(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A landmark seen again after the lag gets a fresh smoother key, but the global graph keeps
+    its first key: the final batch ties the keyframes then and now (a loop closure). Without
+    that (every key its own landmark) the final trajectory is worse."""
+    cfg = RunConfig(backend=BackendConfig(lag_s=1.0, max_landmarks_per_keyframe=10_000))
+    m = lissajous_motion(12.0)
+
+    def final_rmse(est: StereoInertialEstimator) -> tuple[float, int]:
+        poses, lms = est.final_batch()
+        e = [np.linalg.norm(T[:3, 3] - m.pose(k * 0.25)[:3, 3]) for k, T in poses.items()]
+        return float(np.sqrt(np.mean(np.square(e)))), len(lms)
+
+    _, est = _run_sim(cfg, duration=12.0)
+    n_keys = est._next_lm
+    rekeyed = est._lm_gkey[:n_keys] != np.arange(n_keys)
+    assert rekeyed.sum() > 20  # landmarks the smoother marginalised and saw again
+    joined, n_lms = final_rmse(est)
+    assert n_lms == len(est.lm_key) == n_keys - rekeyed.sum()  # one point per landmark
+
+    orig = StereoInertialEstimator._new_landmark_key
+
+    def forget(self: StereoInertialEstimator, fid: int) -> int:
+        self.lm_key.pop(fid, None)
+        return orig(self, fid)
+
+    monkeypatch.setattr(StereoInertialEstimator, "_new_landmark_key", forget)
+    _, est = _run_sim(cfg, duration=12.0)
+    split, _ = final_rmse(est)
+    assert joined < 0.75 * split, f"joined {joined * 1000:.2f} mm, split {split * 1000:.2f} mm"

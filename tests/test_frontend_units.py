@@ -190,6 +190,30 @@ def test_local_map_ids_are_persistent_and_unique() -> None:
     assert m.add(np.zeros((1, 3)), d[:1], np.zeros(1, np.int32), np.zeros((1, 2)), 2)[0] == 108
 
 
+def test_archived_landmarks_come_back_under_their_ids() -> None:
+    m = LocalMap(first_id=10)
+    d = np.arange(6 * 32, dtype=np.uint8).reshape(6, 32)
+    ids = m.add(np.arange(18.0).reshape(6, 3), d, np.arange(6, dtype=np.int32), np.zeros((6, 2)), 0)
+    m.n_found[:] = [5, 1, 5, 5, 2, 7]
+    m.retire(np.array([True, False, True, False, False, True]), max_archived=2)
+    assert m.ids.tolist() == [11, 13, 14]
+    assert sorted(m.archive().ids.tolist()) == [10, 15]  # over the cap: the least found dropped
+    m.add(np.zeros((1, 3)), d[:1], np.zeros(1, np.int32), np.zeros((1, 2)), 1)  # id 16
+    rows = m.archive().index_of(np.array([15, 10]))
+    back = m.revive(rows, np.array([[1.0, 2, 3], [4, 5, 6]]), np.ones((2, 2)), frame=9)
+    assert back.tolist() == [15, 10]
+    assert m.ids.tolist() == [10, 11, 13, 14, 15, 16]  # sorted again: index_of works
+    assert len(m.archive()) == 0
+    r = m.index_of(np.array([10, 15]))
+    np.testing.assert_array_equal(m.xyz[r], [[4, 5, 6], [1, 2, 3]])  # positions seen now
+    np.testing.assert_array_equal(m.desc[r], d[[0, 5]])  # descriptors, octaves kept
+    np.testing.assert_array_equal(m.octave[r], [0, 5])
+    assert m.last_seen[r].tolist() == [9, 9] and m.n_found[r].tolist() == [6, 8]
+    assert ids.tolist() == [10, 11, 12, 13, 14, 15]
+    m.clear()
+    assert len(m) == 0 and len(m.archive()) == 0
+
+
 def test_config_from_dict_rejects_unknown_and_bad_values() -> None:
     assert FrontendConfig.from_dict(None) == FrontendConfig()
     cfg = FrontendConfig.from_dict({"n_features": 800, "stereo_ratio": 0.8, "prefetch": False})

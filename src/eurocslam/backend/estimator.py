@@ -14,7 +14,10 @@ The smoother is an `IncrementalFixedLagSmoother` (or plain `ISAM2`). Fixed-lag p
 here: every new key is given a timestamp (landmarks included), a landmark is re-stamped each
 time it is observed, keys without values are never stamped, and a landmark that has been
 marginalised and is seen again gets a fresh key. Every factor is also kept in a per-segment
-global graph so a full batch optimisation can produce the final (smoothed) trajectory.
+global graph so a full batch optimisation can produce the final (smoothed) trajectory. There a
+landmark keeps its first key however often the smoother let it go: a landmark seen again
+after a while (the frontend re-finds mapped points, `frontend.reuse_map`) ties the keyframes
+that saw it then to those that see it now, so the final batch closes the loop.
 
 All GTSAM failures (indeterminant system, NaN) surface as `EstimatorFailure`; the pipeline's
 health logic resets and starts a new segment.
@@ -109,6 +112,7 @@ class StereoInertialEstimator:
         self._lm_pos = np.zeros((1024, 3))
         self._lm_fid = np.zeros(1024, np.int64)
         self._lm_active = np.zeros(1024, bool)
+        self._lm_gkey = np.zeros(1024, np.int64)  # the landmark's key in the global graph
         self.segment = _Segment()
         self.pim: gtsam.PreintegratedCombinedMeasurements | None = None
         self._pim_t_ns = 0
@@ -187,10 +191,10 @@ class StereoInertialEstimator:
             np.asarray(init.ba, float),
         )
         self._reset_pim(init.t_ns, self.state)
-        self._add_stereo(
+        subst = self._add_stereo(
             0, init.T_world_body, landmark_ids, stereo_uv, stereo_sigma, graph, values, stamps, 0.0
         )
-        self._update(graph, values, stamps)
+        self._update(graph, values, stamps, subst)
         return self._read_state(0, init.t_ns)
 
     # ---- IMU prediction ------------------------------------------------------------------------
@@ -299,7 +303,7 @@ class StereoInertialEstimator:
         tk = self._t(t_ns)
         for key in (X(k), V(k), B(k)):
             stamps[key] = tk
-        self._add_stereo(
+        subst = self._add_stereo(
             k, T_guess, landmark_ids, stereo_uv, stereo_sigma, graph, values, stamps, tk
         )
         n_known = self.stats.n_stereo_factors - self.stats.n_new_landmarks
@@ -323,7 +327,7 @@ class StereoInertialEstimator:
         self.stats.imu_bridged = bridged
         self.k = k
         self.segment.kf_times.append(t_ns)
-        self._update(graph, values, stamps)
+        self._update(graph, values, stamps, subst)
         est = self._read_state(k, t_ns)
         self._reset_pim(t_ns, est)
         return est
@@ -351,7 +355,9 @@ class StereoInertialEstimator:
         values: gtsam.Values,
         stamps: dict[int, float],
         tk: float,
-    ) -> None:
+    ) -> dict[int, gtsam.NonlinearFactor]:
+        """Stereo factors into `graph`. Returns the factors the global graph takes instead
+        (by index in `graph`): those of landmarks whose smoother key is not their first."""
         b = self.cfg.backend
         st = self.stereo
         ids = np.asarray(landmark_ids, dtype=np.int64)
@@ -384,6 +390,7 @@ class StereoInertialEstimator:
             idx = idx[pick]
         T_world_rect0 = np.asarray(T_world_body) @ st.T_body_rect0
         n_new = 0
+        subst: dict[int, gtsam.NonlinearFactor] = {}
         for i in idx.tolist():
             fid = int(ids[i])
             key_i = self.lm_key.get(fid)
@@ -396,25 +403,31 @@ class StereoInertialEstimator:
                 self._lm_pos[key_i] = Xw
                 n_new += 1
             stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
-            graph.add(
-                gtsam.GenericStereoFactor3D(
-                    gtsam.StereoPoint2(uv[i, 0], uv[i, 1], uv[i, 2]),
-                    self._stereo_noise(float(scale[i])),
-                    X(k),
-                    L(key_i),
-                    self.K,
-                    self.body_P_rect0,
+            meas = gtsam.StereoPoint2(uv[i, 0], uv[i, 1], uv[i, 2])
+            noise = self._stereo_noise(float(scale[i]))
+            gkey = int(self._lm_gkey[key_i])
+            if gkey != key_i:
+                subst[graph.size()] = gtsam.GenericStereoFactor3D(
+                    meas, noise, X(k), L(gkey), self.K, self.body_P_rect0
                 )
+            graph.add(
+                gtsam.GenericStereoFactor3D(meas, noise, X(k), L(key_i), self.K, self.body_P_rect0)
             )
         self.stats.n_stereo_factors = len(idx)
         self.stats.n_new_landmarks = n_new
+        return subst
 
     # ---- smoother -------------------------------------------------------------------------------
     def _update(
-        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        stamps: dict[int, float],
+        subst: dict[int, gtsam.NonlinearFactor] | None = None,
     ) -> None:
+        subst = subst or {}
         for i in range(graph.size()):
-            self.segment.graph.add(graph.at(i))
+            self.segment.graph.add(subst.get(i, graph.at(i)))
         try:
             if self.smoother is not None:
                 ts = gtsam.FixedLagSmootherKeyTimestampMap()
@@ -495,9 +508,12 @@ class StereoInertialEstimator:
             n = 2 * self._lm_pos.shape[0]
             self._lm_pos = np.resize(self._lm_pos, (n, 3))
             self._lm_fid = np.resize(self._lm_fid, n)
+            self._lm_gkey = np.resize(self._lm_gkey, n)
             act = np.zeros(n, bool)
             act[: self._lm_active.size] = self._lm_active
             self._lm_active = act
+        old = self.lm_key.get(fid)
+        self._lm_gkey[key_i] = key_i if old is None else self._lm_gkey[old]
         self.lm_key[fid] = key_i
         self._lm_fid[key_i] = fid
         self._lm_active[key_i] = True
@@ -515,7 +531,9 @@ class StereoInertialEstimator:
                 vals.insert(key, np.asarray(v, dtype=float))
             else:
                 vals.insert(key, v)
-        lms = {i: self._lm_pos[i].copy() for i in range(self._next_lm)}
+        # one variable per landmark: its first key (its later keys' factors were re-keyed)
+        gkeys = np.unique(self._lm_gkey[: self._next_lm])
+        lms = {int(i): self._lm_pos[i].copy() for i in gkeys}
         for i, p in lms.items():
             vals.insert(L(i), gtsam.Point3(*p))
         graph = self.segment.graph

@@ -62,6 +62,15 @@ class FrontendConfig:
     landmark_max_unseen_frames: int = 40  # culled when not matched for this many frames
     landmark_min_found_ratio: float = 0.25  # found / visible below this: culled
     landmark_min_visible_for_ratio: int = 8  # ... once predicted visible this many times
+    # map reuse: landmarks culled for going unseen (found at least `archive_min_found` times)
+    # are archived; at each keyframe the archive is projected and re-found landmarks come back
+    # under their old ids, so the final batch ties the keyframes then and now (loop closure)
+    reuse_map: bool = True
+    archive_min_found: int = 3
+    archive_max_landmarks: int = 100_000  # beyond: the least found are dropped
+    reuse_radius_px: float = 6.0  # projection search radius (times the octave scale)
+    reuse_max_hamming: int = 50  # stricter than tracking: a wrong match is a wrong loop
+    reuse_ratio: float = 0.8
 
     # ---- keyframe decision -----------------------------------------------------------------
     kf_max_interval_s: float = 0.5

@@ -341,19 +341,19 @@ class StereoFrontend:
         m.desc[inlier_rows] = ff.left.desc[inlier_kps]
         is_kf = self._need_keyframe(ff, inlier_rows, inlier_kps)
         ids = m.ids[inlier_rows]
-        uv = self._stereo_uv(ff, inlier_kps)
         obs_kps = inlier_kps
         tracked = np.zeros(len(ff.left), dtype=bool)
         tracked[inlier_kps] = True
         n_tracked = int(inlier_rows.size)
         if is_kf:
-            new_ids, new_kps = self._create_landmarks(ff, T_world_body, tracked)
-            ids = np.concatenate([ids, new_ids])
-            uv = np.concatenate([uv, self._stereo_uv(ff, new_kps)])
-            obs_kps = np.concatenate([inlier_kps, new_kps])
+            used = tracked.copy()
+            old_ids, old_kps = self._reuse(ff, T_world_body, used)
+            used[old_kps] = True
+            new_ids, new_kps = self._create_landmarks(ff, T_world_body, used)
+            ids = np.concatenate([ids, old_ids, new_ids])
+            obs_kps = np.concatenate([inlier_kps, old_kps, new_kps])
             m.kf_uv[:] = np.nan
-            rows = m.index_of(ids)
-            m.kf_uv[rows] = ff.left.uv[np.concatenate([inlier_kps, new_kps])]
+            m.kf_uv[m.index_of(ids)] = ff.left.uv[obs_kps]
             self._last_kf_t_ns = ff.t_ns
             self._ref_kf_tracked = n_tracked
         self._cull()
@@ -364,7 +364,7 @@ class StereoFrontend:
             timings,
             t0,
             ids=ids,
-            uv=uv,
+            uv=self._stereo_uv(ff, obs_kps),
             is_kf=is_kf,
             tracked=tracked,
             n_tracked=n_tracked,
@@ -439,19 +439,23 @@ class StereoFrontend:
         cand = cand[np.argsort(ff.stereo.depth[cand], kind="stable")]
         if limit is not None:
             cand = cand[:limit]
-        g = self.rectified
-        uv = ff.left.uv[cand]
-        p_rect = triangulate_rect(uv[:, 0], ff.stereo.uR[cand], uv[:, 1], g)
-        T_world_rect0 = T_world_body @ self._T_body_rect0
-        xyz = p_rect @ T_world_rect0[:3, :3].T + T_world_rect0[:3, 3]
         ids = self.map.add(
-            xyz,
+            self._triangulate_world(ff, cand, T_world_body),
             ff.left.desc[cand],
             ff.left.octave[cand],
             np.full((cand.size, 2), np.nan),
             self.frame_index,
         )
         return ids, cand
+
+    def _triangulate_world(
+        self, ff: FrameFeatures, kps: NDArray[np.intp], T_world_body: F64
+    ) -> F64:
+        """World positions (N, 3) of stereo keypoints `kps` seen from `T_world_body`."""
+        uv = ff.left.uv[kps]
+        p_rect = triangulate_rect(uv[:, 0], ff.stereo.uR[kps], uv[:, 1], self.rectified)
+        T_world_rect0 = T_world_body @ self._T_body_rect0
+        return p_rect @ T_world_rect0[:3, :3].T + T_world_rect0[:3, 3]
 
     def _match_and_optimize(
         self,
@@ -564,6 +568,45 @@ class StereoFrontend:
             return None
         return T
 
+    def _reuse(
+        self, ff: FrameFeatures, T_world_body: F64, used: NDArray[np.bool_]
+    ) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
+        """Re-find archived landmarks among the stereo keypoints not `used`: projection search
+        at the tracked pose (stereo-consistent, strict descriptor distance). They return to the
+        map under their old ids, at their position triangulated now."""
+        c = self.config
+        none = np.zeros(0, np.int64), np.zeros(0, np.intp)
+        if not c.reuse_map:
+            return none
+        a = self.map.archive()
+        if len(a) == 0:
+            return none
+        T_rc = rect_T_from_body(T_world_body, self._T_body_rect0)
+        proj = project_map(T_rc, a.xyz, self.rectified)
+        rows = np.nonzero(proj.in_view)[0]
+        if rows.size == 0:
+            return none
+        free = used | ~ff.stereo.valid
+        rows, kps, _ = search_by_projection(
+            proj,
+            rows,
+            a.desc,
+            a.octave,
+            ff.left,
+            ff.stereo.uR,
+            cKDTree(ff.left.uv),
+            self.scale,
+            c.reuse_radius_px,
+            c.reuse_max_hamming,
+            c.reuse_ratio,
+            taken=free,
+        )
+        if rows.size == 0:
+            return none
+        xyz = self._triangulate_world(ff, kps, T_world_body)
+        ids = self.map.revive(rows, xyz, ff.left.uv[kps], self.frame_index)
+        return ids, kps
+
     def _need_keyframe(
         self, ff: FrameFeatures, rows: NDArray[np.intp], kps: NDArray[np.intp]
     ) -> bool:
@@ -598,8 +641,13 @@ class StereoFrontend:
             order = np.argsort(-m.last_seen[idx], kind="stable")
             keep[:] = False
             keep[idx[order[: c.max_landmarks]]] = True
-        if not keep.all():
-            m.keep(keep)
+        if keep.all():
+            return
+        if c.reuse_map:  # reliable landmarks that went unseen wait in the archive
+            retire = ~keep & ~ratio_bad & (m.n_found >= c.archive_min_found)
+            m.retire(retire, c.archive_max_landmarks)
+            keep = keep[~retire]
+        m.keep(keep)
 
     def _result(
         self,

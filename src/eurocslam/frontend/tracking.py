@@ -21,10 +21,17 @@ I64 = NDArray[np.int64]
 _I3 = np.eye(3)
 
 
-class LocalMap:
-    """Landmarks with persistent int64 ids, kept sorted by id (ids only ever grow)."""
+_FIELDS = ("ids", "xyz", "desc", "octave", "n_visible", "n_found", "last_seen", "kf_uv")
 
-    def __init__(self, first_id: int = 0) -> None:
+
+class LocalMap:
+    """Landmarks with persistent int64 ids, kept sorted by id.
+
+    The archive (itself a LocalMap) holds the reliable landmarks that were culled because they
+    went unseen: `revive` moves re-found ones back under their old ids. Retired rows are
+    gathered in chunks and joined only when the archive is read (once per keyframe)."""
+
+    def __init__(self, first_id: int = 0, with_archive: bool = True) -> None:
         self.next_id = int(first_id)
         self.ids: I64 = np.zeros(0, np.int64)
         self.xyz: F64 = np.zeros((0, 3))  # world frame
@@ -34,6 +41,9 @@ class LocalMap:
         self.n_found: I64 = np.zeros(0, np.int64)  # matched as a pose inlier
         self.last_seen: I64 = np.zeros(0, np.int64)  # frame index of the last inlier match
         self.kf_uv: F64 = np.zeros((0, 2))  # pixel position at the last keyframe (NaN: unseen)
+        self._archive: LocalMap | None = LocalMap(with_archive=False) if with_archive else None
+        self._retired: list[dict[str, np.ndarray]] = []
+        self._max_archived = 0
 
     def __len__(self) -> int:
         return int(self.ids.size)
@@ -44,22 +54,75 @@ class LocalMap:
         n = xyz.shape[0]
         ids = np.arange(self.next_id, self.next_id + n, dtype=np.int64)
         self.next_id += n
-        self.ids = np.concatenate([self.ids, ids])
-        self.xyz = np.concatenate([self.xyz, xyz])
-        self.desc = np.concatenate([self.desc, desc])
-        self.octave = np.concatenate([self.octave, octave.astype(np.int32)])
-        self.n_visible = np.concatenate([self.n_visible, np.ones(n, np.int64)])
-        self.n_found = np.concatenate([self.n_found, np.ones(n, np.int64)])
-        self.last_seen = np.concatenate([self.last_seen, np.full(n, frame, np.int64)])
-        self.kf_uv = np.concatenate([self.kf_uv, uv])
+        self._append(
+            {
+                "ids": ids,
+                "xyz": xyz,
+                "desc": desc,
+                "octave": octave.astype(np.int32),
+                "n_visible": np.ones(n, np.int64),
+                "n_found": np.ones(n, np.int64),
+                "last_seen": np.full(n, frame, np.int64),
+                "kf_uv": uv,
+            }
+        )
         return ids
 
     def keep(self, mask: NDArray[np.bool_]) -> None:
-        for name in ("ids", "xyz", "desc", "octave", "n_visible", "n_found", "last_seen", "kf_uv"):
+        for name in _FIELDS:
             setattr(self, name, getattr(self, name)[mask])
 
     def clear(self) -> None:
         self.keep(np.zeros(len(self), dtype=bool))
+        if self._archive is not None:
+            self._archive.clear()
+        self._retired = []
+
+    def retire(self, mask: NDArray[np.bool_], max_archived: int) -> None:
+        """Move rows `mask` to the archive; beyond `max_archived` the least found are dropped."""
+        if self._archive is None or not mask.any():
+            return
+        self._retired.append({name: getattr(self, name)[mask] for name in _FIELDS})
+        self._max_archived = max_archived
+        self.keep(~mask)
+
+    def archive(self) -> LocalMap:
+        """The archived landmarks (empty without an archive)."""
+        a = self._archive
+        if a is None:
+            return LocalMap(with_archive=False)
+        if self._retired:
+            a._append({n: np.concatenate([r[n] for r in self._retired]) for n in _FIELDS})
+            self._retired = []
+            if len(a) > self._max_archived:
+                order = np.argsort(-a.n_found, kind="stable")
+                a.keep(np.sort(order[: self._max_archived]))
+        return a
+
+    def revive(self, rows: NDArray[np.intp], xyz: F64, uv: F64, frame: int) -> I64:
+        """Move rows of `archive()` back into the map (their ids kept) at positions `xyz`, seen
+        now."""
+        a = self.archive()
+        back = {name: getattr(a, name)[rows] for name in _FIELDS}
+        gone = np.zeros(len(a), dtype=bool)
+        gone[rows] = True
+        a.keep(~gone)
+        back["xyz"] = xyz
+        back["kf_uv"] = uv
+        back["last_seen"] = np.full(rows.size, frame, np.int64)
+        back["n_visible"] = back["n_visible"] + 1
+        back["n_found"] = back["n_found"] + 1
+        self._append(back)
+        return back["ids"]
+
+    def _append(self, rows: dict[str, np.ndarray]) -> None:
+        if rows["ids"].size == 0:
+            return
+        tail_sorted = not len(self) or rows["ids"].min() > self.ids[-1]
+        for name in _FIELDS:
+            setattr(self, name, np.concatenate([getattr(self, name), rows[name]]))
+        if not (tail_sorted and np.all(np.diff(rows["ids"]) > 0)):
+            self.keep(np.argsort(self.ids, kind="stable"))
 
     def index_of(self, ids: I64) -> NDArray[np.intp]:
         """Row of each id, -1 when the id is not (or no longer) in the map."""
