@@ -107,6 +107,7 @@ class RunSummary:
     frames_with_pose: int = 0
     keyframes: int = 0
     landmarks: int = 0
+    landmarks_reused: int = 0  # archived landmarks re-found (map reuse: loop closures)
     segments: int = 0
     resets: list[tuple[int, str]] = field(default_factory=list)
     init_modes: list[str] = field(default_factory=list)
@@ -152,6 +153,7 @@ class RunSummary:
             "coverage": round(self.coverage, 4),
             "keyframes": self.keyframes,
             "landmarks": self.landmarks,
+            "landmarks_reused": self.landmarks_reused,
             "segments": self.segments,
             "resets": [{"t_ns": t, "reason": r} for t, r in self.resets],
             "init_modes": self.init_modes,
@@ -175,7 +177,8 @@ class RunSummary:
         out = [
             f"{self.sequence}: {self.mode}, {self.frames} frames, pose for "
             f"{self.frames_with_pose} ({100 * self.coverage:.1f} %), {self.keyframes} keyframes, "
-            f"{self.landmarks} landmarks, {self.segments} segment(s), {len(self.resets)} reset(s)",
+            f"{self.landmarks} landmarks ({self.landmarks_reused} re-found), "
+            f"{self.segments} segment(s), {len(self.resets)} reset(s)",
             f"init: {', '.join(self.init_modes) or 'none'}; frames per state: "
             + ", ".join(f"{k} {v}" for k, v in sorted(self.state_frames.items())),
             f"{self.duration_s:.1f} s of data in {self.wall_s:.1f} s wall "
@@ -323,8 +326,10 @@ class SlamPipeline:
             out = self._step_init(frame, ff)
         else:
             out = self._step_tracking(frame, ff)
-        if out.frontend is not None and "track_total" in out.frontend.timings_ms:
-            s.add_time("tracking", out.frontend.timings_ms["track_total"])
+        if out.frontend is not None:
+            s.landmarks_reused += out.frontend.n_reused
+            if "track_total" in out.frontend.timings_ms:
+                s.add_time("tracking", out.frontend.timings_ms["track_total"])
         s.state_frames[out.state.value] = s.state_frames.get(out.state.value, 0) + 1
         if out.T_world_body is not None:
             s.frames_with_pose += 1

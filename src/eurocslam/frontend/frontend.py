@@ -369,6 +369,7 @@ class StereoFrontend:
             tracked=tracked,
             n_tracked=n_tracked,
             obs_kps=obs_kps,
+            n_reused=int(old_kps.size) if is_kf else 0,
         )
 
     # ---- internals --------------------------------------------------------------------------
@@ -662,6 +663,7 @@ class StereoFrontend:
         tracked: NDArray[np.bool_] | None = None,
         n_tracked: int = 0,
         obs_kps: NDArray[np.intp] | None = None,
+        n_reused: int = 0,
     ) -> FrontendResult:
         t_draw = time.perf_counter()
         draw = self._rectifier.rect0_to_raw(ff.left.uv) if len(ff.left) else np.zeros((0, 2))
@@ -677,6 +679,7 @@ class StereoFrontend:
             n_features=len(ff.left),
             n_stereo=int(ff.stereo.valid.sum()),
             n_tracked=n_tracked,
+            n_reused=n_reused,
             draw_uv=draw,
             draw_tracked=tracked if tracked is not None else np.zeros(len(ff.left), dtype=bool),
             timings_ms=timings,

@@ -52,6 +52,7 @@ class FrontendResult:
     n_features: int  # ORB keypoints in the left image
     n_stereo: int  # of which stereo-matched
     n_tracked: int  # landmarks tracked (PnP inliers)
+    n_reused: int = 0  # archived landmarks re-found at this keyframe (map reuse)
     # 2D points in *raw* (unrectified) cam0 pixels for drawing: (M, 2), and whether tracked
     draw_uv: F64 = field(default_factory=lambda: np.zeros((0, 2)))
     draw_tracked: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))

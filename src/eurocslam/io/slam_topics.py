@@ -47,7 +47,16 @@ if TYPE_CHECKING:
 
 WORLD = "world"
 BODY = "body"
-STATS_LABELS = ("state", "features", "stereo", "tracked", "landmarks", "segment", "keyframe")
+STATS_LABELS = (
+    "state",
+    "features",
+    "stereo",
+    "tracked",
+    "landmarks",
+    "segment",
+    "keyframe",
+    "reused",  # archived landmarks re-found at this keyframe (map reuse)
+)
 BIAS_LABELS = ("bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z")
 VEL_LABELS = ("vx", "vy", "vz", "speed")
 ERROR_LABELS = ("ex", "ey", "ez", "norm")  # estimate - ground truth (aligned), world, metres
@@ -163,6 +172,7 @@ class SlamMcapWriter:
             n_active if out.is_keyframe else pipeline.n_active_landmarks(),
             out.segment,
             1.0 if out.is_keyframe else 0.0,
+            fr.n_reused if fr else 0,
         ]
         self._w(
             "/slam/stats",
