@@ -191,27 +191,51 @@ def test_local_map_ids_are_persistent_and_unique() -> None:
 
 
 def test_archived_landmarks_come_back_under_their_ids() -> None:
-    m = LocalMap(first_id=10)
+    m = LocalMap(first_id=10, archive_capacity=2)
     d = np.arange(6 * 32, dtype=np.uint8).reshape(6, 32)
     ids = m.add(np.arange(18.0).reshape(6, 3), d, np.arange(6, dtype=np.int32), np.zeros((6, 2)), 0)
     m.n_found[:] = [5, 1, 5, 5, 2, 7]
-    m.retire(np.array([True, False, True, False, False, True]), max_archived=2)
-    assert m.ids.tolist() == [11, 13, 14]
-    assert sorted(m.archive().ids.tolist()) == [10, 15]  # over the cap: the least found dropped
-    m.add(np.zeros((1, 3)), d[:1], np.zeros(1, np.int32), np.zeros((1, 2)), 1)  # id 16
-    rows = m.archive().index_of(np.array([15, 10]))
-    back = m.revive(rows, np.array([[1.0, 2, 3], [4, 5, 6]]), np.ones((2, 2)), frame=9)
-    assert back.tolist() == [15, 10]
-    assert m.ids.tolist() == [10, 11, 13, 14, 15, 16]  # sorted again: index_of works
-    assert len(m.archive()) == 0
-    r = m.index_of(np.array([10, 15]))
-    np.testing.assert_array_equal(m.xyz[r], [[4, 5, 6], [1, 2, 3]])  # positions seen now
-    np.testing.assert_array_equal(m.desc[r], d[[0, 5]])  # descriptors, octaves kept
-    np.testing.assert_array_equal(m.octave[r], [0, 5])
-    assert m.last_seen[r].tolist() == [9, 9] and m.n_found[r].tolist() == [6, 8]
+    m.retire(np.array([True, False, True, False, False, True]))
     assert ids.tolist() == [10, 11, 12, 13, 14, 15]
+    assert m.ids.tolist() == [11, 13, 14]
+    a = m.archive
+    # over the capacity the least found go (down to 90 %: here one row left)
+    assert len(a) == 1 and a.ids[: a.n][a.live[: a.n]].tolist() == [15]
+    m.retire(np.array([True, False, False]))  # id 11, found once
+    assert len(a) == 2
+    m.add(np.zeros((1, 3)), d[:1], np.zeros(1, np.int32), np.zeros((1, 2)), 1)  # id 16
+    rows = np.array([int(np.nonzero(a.ids[: a.n] == i)[0][0]) for i in (15, 11)])
+    back = m.revive(rows, np.array([[1.0, 2, 3], [4, 5, 6]]), np.ones((2, 2)), frame=9)
+    assert back.tolist() == [15, 11]
+    assert m.ids.tolist() == [11, 13, 14, 15, 16]  # sorted again: index_of works
+    assert len(a) == 0
+    r = m.index_of(np.array([11, 15]))
+    np.testing.assert_array_equal(m.xyz[r], [[4, 5, 6], [1, 2, 3]])  # positions seen now
+    np.testing.assert_array_equal(m.desc[r], d[[1, 5]])  # descriptors and octaves kept
+    np.testing.assert_array_equal(m.octave[r], [1, 5])
+    assert m.last_seen[r].tolist() == [9, 9] and m.n_found[r].tolist() == [2, 8]
     m.clear()
-    assert len(m) == 0 and len(m.archive()) == 0
+    assert len(m) == 0 and len(a) == 0
+
+
+def test_archive_grows_and_compacts() -> None:
+    m = LocalMap(archive_capacity=10**6)
+    d = np.zeros((1, 32), np.uint8)
+    for i in range(3000):  # retire one at a time: amortised appends
+        m.add(np.full((1, 3), float(i)), d, np.zeros(1, np.int32), np.zeros((1, 2)), i)
+        m.retire(np.ones(1, bool))
+    a = m.archive
+    assert len(a) == a.n == 3000 and a.live.size >= 3000
+    np.testing.assert_array_equal(a.xyz[: a.n, 0], np.arange(3000.0))
+    m.revive(np.arange(0, 3000, 2), np.zeros((1500, 3)), np.zeros((1500, 2)), 0)
+    m.revive(np.arange(1, 2000, 2), np.zeros((1000, 3)), np.zeros((1000, 2)), 0)
+    assert len(a) == 500 and len(m) == 2500
+    size = a.live.size
+    for _ in range(size - a.n + 1):  # full: compacts (most rows dead) instead of growing
+        m.add(np.zeros((1, 3)), d, np.zeros(1, np.int32), np.zeros((1, 2)), 0)
+    m.retire(np.arange(len(m)) >= 2500)
+    assert a.live.size == size and len(a) == a.n == 500 + size - 3000 + 1
+    assert sorted(a.ids[: a.n][:500].tolist()) == list(range(2001, 3000, 2))
 
 
 def test_config_from_dict_rejects_unknown_and_bad_values() -> None:

@@ -144,7 +144,7 @@ class StereoFrontend:
         self._T_body_rect0 = g.T_body_rect0
         self._local = threading.local()
         self.scale = self.config.orb_scale_factor ** np.arange(self.config.orb_levels)
-        self.map = LocalMap(first_landmark_id)
+        self.map = LocalMap(first_landmark_id, self.config.archive_max_landmarks)
         self._T_init = None if T_world_body_init is None else np.asarray(T_world_body_init, float)
         self._motion = _VelocityModel(
             self.config.max_velocity_m_s, self.config.max_angular_velocity_rad_s
@@ -575,38 +575,36 @@ class StereoFrontend:
         """Re-find archived landmarks among the stereo keypoints not `used`: projection search
         at the tracked pose (stereo-consistent, strict descriptor distance). They return to the
         map under their old ids, at their position triangulated now."""
-        c = self.config
+        c, a = self.config, self.map.archive
         none = np.zeros(0, np.int64), np.zeros(0, np.intp)
-        if not c.reuse_map:
-            return none
-        a = self.map.archive()
-        if len(a) == 0:
+        free = np.nonzero(ff.stereo.valid & ~used)[0]
+        if not c.reuse_map or len(a) == 0 or free.size == 0:
             return none
         T_rc = rect_T_from_body(T_world_body, self._T_body_rect0)
-        proj = project_map(T_rc, a.xyz, self.rectified)
-        rows = np.nonzero(proj.in_view)[0]
+        proj = project_map(T_rc, a.xyz[: a.n], self.rectified)
+        rows = np.nonzero(proj.in_view & a.live[: a.n])[0]
         if rows.size == 0:
             return none
-        free = used | ~ff.stereo.valid
+        fl = ff.left
+        cand = Features(fl.uv[free], fl.octave[free], fl.response[free], fl.desc[free])
         rows, kps, _ = search_by_projection(
             proj,
             rows,
             a.desc,
             a.octave,
-            ff.left,
-            ff.stereo.uR,
-            cKDTree(ff.left.uv),
+            cand,
+            ff.stereo.uR[free],
+            cKDTree(cand.uv),
             self.scale,
             c.reuse_radius_px,
             c.reuse_max_hamming,
             c.reuse_ratio,
-            taken=free,
         )
         if rows.size == 0:
             return none
+        kps = free[kps]
         xyz = self._triangulate_world(ff, kps, T_world_body)
-        ids = self.map.revive(rows, xyz, ff.left.uv[kps], self.frame_index)
-        return ids, kps
+        return self.map.revive(rows, xyz, fl.uv[kps], self.frame_index), kps
 
     def _need_keyframe(
         self, ff: FrameFeatures, rows: NDArray[np.intp], kps: NDArray[np.intp]
@@ -646,7 +644,7 @@ class StereoFrontend:
             return
         if c.reuse_map:  # reliable landmarks that went unseen wait in the archive
             retire = ~keep & ~ratio_bad & (m.n_found >= c.archive_min_found)
-            m.retire(retire, c.archive_max_landmarks)
+            m.retire(retire)
             keep = keep[~retire]
         m.keep(keep)
 

@@ -22,16 +22,82 @@ _I3 = np.eye(3)
 
 
 _FIELDS = ("ids", "xyz", "desc", "octave", "n_visible", "n_found", "last_seen", "kf_uv")
+_ARCHIVED = ("ids", "xyz", "desc", "octave", "n_visible", "n_found")
+
+
+class LandmarkArchive:
+    """Landmarks culled for going unseen, kept so they can be re-found (map reuse).
+
+    Rows are appended to arrays grown by doubling and marked dead when revived or dropped, so
+    retiring and reviving cost what they move, not the archive's size. Read `live` with the
+    arrays up to `n`. Over `capacity` live rows, the least found are dropped (down to 90 %)."""
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = int(capacity)
+        self.n = 0  # rows used, live or dead
+        self.n_live = 0
+        self.ids: I64 = np.zeros(0, np.int64)
+        self.xyz: F64 = np.zeros((0, 3))
+        self.desc: NDArray[np.uint8] = np.zeros((0, 32), np.uint8)
+        self.octave: NDArray[np.int32] = np.zeros(0, np.int32)
+        self.n_visible: I64 = np.zeros(0, np.int64)
+        self.n_found: I64 = np.zeros(0, np.int64)
+        self.live: NDArray[np.bool_] = np.zeros(0, bool)
+
+    def __len__(self) -> int:
+        return self.n_live
+
+    def add(self, rows: dict[str, np.ndarray]) -> None:
+        k = int(rows["ids"].size)
+        if k == 0:
+            return
+        if self.n + k > self.live.size:
+            if self.n_live < self.n // 2:  # mostly dead rows: compact instead of growing
+                self._keep(np.nonzero(self.live[: self.n])[0])
+            if self.n + k > self.live.size:
+                size = max(1024, 2 * (self.n + k))
+                for name in (*_ARCHIVED, "live"):
+                    a = getattr(self, name)
+                    grown = np.zeros((size, *a.shape[1:]), a.dtype)
+                    grown[: self.n] = a[: self.n]
+                    setattr(self, name, grown)
+        sl = slice(self.n, self.n + k)
+        for name in _ARCHIVED:
+            getattr(self, name)[sl] = rows[name]
+        self.live[sl] = True
+        self.n += k
+        self.n_live += k
+        if self.n_live > self.capacity:
+            live = np.nonzero(self.live[: self.n])[0]
+            order = np.argsort(-self.n_found[live], kind="stable")
+            self.live[live[order[int(0.9 * self.capacity) :]]] = False
+            self.n_live = int(self.live[: self.n].sum())
+
+    def take(self, rows: NDArray[np.intp]) -> dict[str, np.ndarray]:
+        """Rows (live, distinct) out of the archive."""
+        out = {name: getattr(self, name)[rows].copy() for name in _ARCHIVED}
+        self.live[rows] = False
+        self.n_live -= int(rows.size)
+        return out
+
+    def clear(self) -> None:
+        self.live[: self.n] = False
+        self.n = self.n_live = 0
+
+    def _keep(self, rows: NDArray[np.intp]) -> None:
+        for name in (*_ARCHIVED, "live"):
+            a = getattr(self, name)
+            a[: rows.size] = a[rows]
+        self.n = self.n_live = int(rows.size)
 
 
 class LocalMap:
     """Landmarks with persistent int64 ids, kept sorted by id.
 
-    The archive (itself a LocalMap) holds the reliable landmarks that were culled because they
-    went unseen: `revive` moves re-found ones back under their old ids. Retired rows are
-    gathered in chunks and joined only when the archive is read (once per keyframe)."""
+    `archive` holds the reliable landmarks culled because they went unseen (`retire`);
+    `revive` moves re-found ones back under their old ids."""
 
-    def __init__(self, first_id: int = 0, with_archive: bool = True) -> None:
+    def __init__(self, first_id: int = 0, archive_capacity: int = 0) -> None:
         self.next_id = int(first_id)
         self.ids: I64 = np.zeros(0, np.int64)
         self.xyz: F64 = np.zeros((0, 3))  # world frame
@@ -41,9 +107,7 @@ class LocalMap:
         self.n_found: I64 = np.zeros(0, np.int64)  # matched as a pose inlier
         self.last_seen: I64 = np.zeros(0, np.int64)  # frame index of the last inlier match
         self.kf_uv: F64 = np.zeros((0, 2))  # pixel position at the last keyframe (NaN: unseen)
-        self._archive: LocalMap | None = LocalMap(with_archive=False) if with_archive else None
-        self._retired: list[dict[str, np.ndarray]] = []
-        self._max_archived = 0
+        self.archive = LandmarkArchive(archive_capacity)
 
     def __len__(self) -> int:
         return int(self.ids.size)
@@ -74,44 +138,24 @@ class LocalMap:
 
     def clear(self) -> None:
         self.keep(np.zeros(len(self), dtype=bool))
-        if self._archive is not None:
-            self._archive.clear()
-        self._retired = []
+        self.archive.clear()
 
-    def retire(self, mask: NDArray[np.bool_], max_archived: int) -> None:
-        """Move rows `mask` to the archive; beyond `max_archived` the least found are dropped."""
-        if self._archive is None or not mask.any():
-            return
-        self._retired.append({name: getattr(self, name)[mask] for name in _FIELDS})
-        self._max_archived = max_archived
+    def retire(self, mask: NDArray[np.bool_]) -> None:
+        """Move rows `mask` out of the map into the archive."""
+        self.archive.add({name: getattr(self, name)[mask] for name in _ARCHIVED})
         self.keep(~mask)
 
-    def archive(self) -> LocalMap:
-        """The archived landmarks (empty without an archive)."""
-        a = self._archive
-        if a is None:
-            return LocalMap(with_archive=False)
-        if self._retired:
-            a._append({n: np.concatenate([r[n] for r in self._retired]) for n in _FIELDS})
-            self._retired = []
-            if len(a) > self._max_archived:
-                order = np.argsort(-a.n_found, kind="stable")
-                a.keep(np.sort(order[: self._max_archived]))
-        return a
-
     def revive(self, rows: NDArray[np.intp], xyz: F64, uv: F64, frame: int) -> I64:
-        """Move rows of `archive()` back into the map (their ids kept) at positions `xyz`, seen
-        now."""
-        a = self.archive()
-        back = {name: getattr(a, name)[rows] for name in _FIELDS}
-        gone = np.zeros(len(a), dtype=bool)
-        gone[rows] = True
-        a.keep(~gone)
-        back["xyz"] = xyz
-        back["kf_uv"] = uv
-        back["last_seen"] = np.full(rows.size, frame, np.int64)
-        back["n_visible"] = back["n_visible"] + 1
-        back["n_found"] = back["n_found"] + 1
+        """Move archive rows back into the map (their ids kept) at positions `xyz`, seen now."""
+        back = self.archive.take(rows)
+        n = int(rows.size)
+        back.update(
+            xyz=xyz,
+            kf_uv=uv,
+            last_seen=np.full(n, frame, np.int64),
+            n_visible=back["n_visible"] + 1,
+            n_found=back["n_found"] + 1,
+        )
         self._append(back)
         return back["ids"]
 
