@@ -84,6 +84,50 @@ def test_visual_odometry_ate_on_a_rendered_flight(tiny_sequence: Path) -> None:
     assert path > 0.5  # the camera really moved
 
 
+def test_archived_landmarks_are_re_found_where_they_were(tiny_sequence: Path) -> None:
+    """Map reuse on the 2 s flight, with landmarks archived after 2 unseen frames: re-found
+    landmarks come back under ids made earlier, and are the same points. Every stereo sighting
+    is put in the true world with the true body pose (odometry drift drops out) and compared
+    with the landmark's first sighting across the viewing ray (where stereo is precise; along
+    it, depth noise is centimetres), in pixels. Measured: median 0.9 px, 95th percentile 2.7
+    (continuously tracked landmarks: 0.5 and 2.0; a stricter descriptor, radius or ratio test
+    does not shrink it: viewpoint and octave changes over the gap, not wrong matches)."""
+    seq = open_sequence(tiny_sequence)
+    gt = seq.groundtruth
+    assert gt is not None
+    T_gt = dict(zip(gt.t_ns.tolist(), gt.T_world_body(), strict=True))
+    fe = StereoFrontend(seq.rig, FrontendConfig(landmark_max_unseen_frames=2))
+    g = fe.rectified
+    first: dict[int, np.ndarray] = {}  # id -> first sighting, true world
+    tracked_px, reused_px = [], []
+    for frame in seq.frames():
+        next_id = fe.map.next_id
+        r = fe.process(frame)
+        ids, uv = r.landmark_ids, r.stereo_uv
+        reused = np.zeros(ids.size, bool)
+        reused[r.n_tracked : r.n_tracked + r.n_reused] = True
+        assert np.all(ids[reused] < next_id)
+        T_true = T_gt[frame.t_ns] @ g.T_body_rect0
+        p = triangulate_rect(uv[:, 0], uv[:, 1], uv[:, 2], g) @ T_true[:3, :3].T + T_true[:3, 3]
+        seen = np.array([int(i) in first for i in ids], bool) & np.isfinite(p).all(axis=1)
+        if seen.any():
+            was = np.array([first[int(i)] for i in ids[seen]])
+            rng = np.linalg.norm(p[seen] - T_true[:3, 3], axis=1, keepdims=True)
+            ray = (p[seen] - T_true[:3, 3]) / rng
+            d = was - p[seen]
+            across = np.linalg.norm(d - np.sum(d * ray, axis=1, keepdims=True) * ray, axis=1)
+            px = g.fx * across / rng[:, 0]
+            reused_px.append(px[reused[seen]])
+            tracked_px.append(px[~reused[seen] & (ids[seen] < next_id)])
+        for i, q in zip(ids.tolist(), p, strict=True):
+            if i not in first and np.isfinite(q).all():
+                first[i] = q
+    re, tr = np.concatenate(reused_px), np.concatenate(tracked_px)
+    assert re.size > 50, re.size
+    q_re, q_tr = np.percentile(re, [50, 95]), np.percentile(tr, [50, 95])
+    assert q_re[0] < 1.5 and q_re[1] < 4.0, (q_re, q_tr)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["V2_03_difficult", "MH_04_difficult"])
 def test_visual_odometry_on_semi_real_replicas(
