@@ -604,7 +604,8 @@ class StereoFrontend:
             return none
         kps = free[kps]
         xyz = self._triangulate_world(ff, kps, T_world_body)
-        return self.map.revive(rows, xyz, fl.uv[kps], self.frame_index), kps
+        ids = self.map.revive(rows, xyz, fl.desc[kps], fl.octave[kps], fl.uv[kps], self.frame_index)
+        return ids, kps
 
     def _need_keyframe(
         self, ff: FrameFeatures, rows: NDArray[np.intp], kps: NDArray[np.intp]

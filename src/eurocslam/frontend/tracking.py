@@ -145,12 +145,23 @@ class LocalMap:
         self.archive.add({name: getattr(self, name)[mask] for name in _ARCHIVED})
         self.keep(~mask)
 
-    def revive(self, rows: NDArray[np.intp], xyz: F64, uv: F64, frame: int) -> I64:
-        """Move archive rows back into the map (their ids kept) at positions `xyz`, seen now."""
+    def revive(
+        self,
+        rows: NDArray[np.intp],
+        xyz: F64,
+        desc: NDArray[np.uint8],
+        octave: NDArray[np.int32],
+        uv: F64,
+        frame: int,
+    ) -> I64:
+        """Move archive rows back into the map under their ids, as seen now: position,
+        descriptor, octave and pixel of the sighting that re-found them."""
         back = self.archive.take(rows)
         n = int(rows.size)
         back.update(
             xyz=xyz,
+            desc=desc,
+            octave=octave.astype(np.int32),
             kf_uv=uv,
             last_seen=np.full(n, frame, np.int64),
             n_visible=back["n_visible"] + 1,
