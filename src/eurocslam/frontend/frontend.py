@@ -574,7 +574,7 @@ class StereoFrontend:
     ) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
         """Re-find archived landmarks among the stereo keypoints not `used`: projection search
         at the tracked pose (stereo-consistent, strict descriptor distance). They return to the
-        map under their old ids, at their position triangulated now."""
+        map under their old ids, as seen now (position, descriptor, octave)."""
         c, a = self.config, self.map.archive
         none = np.zeros(0, np.int64), np.zeros(0, np.intp)
         free = np.nonzero(ff.stereo.valid & ~used)[0]

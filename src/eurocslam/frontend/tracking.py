@@ -75,7 +75,7 @@ class LandmarkArchive:
 
     def take(self, rows: NDArray[np.intp]) -> dict[str, np.ndarray]:
         """Rows (live, distinct) out of the archive."""
-        out = {name: getattr(self, name)[rows].copy() for name in _ARCHIVED}
+        out = {name: getattr(self, name)[rows] for name in _ARCHIVED}
         self.live[rows] = False
         self.n_live -= int(rows.size)
         return out
