@@ -577,8 +577,10 @@ class StereoFrontend:
         map under their old ids, as seen now (position, descriptor, octave)."""
         c, a = self.config, self.map.archive
         none = np.zeros(0, np.int64), np.zeros(0, np.intp)
+        if not c.reuse_map or len(a) == 0:
+            return none
         free = np.nonzero(ff.stereo.valid & ~used)[0]
-        if not c.reuse_map or len(a) == 0 or free.size == 0:
+        if free.size == 0:
             return none
         T_rc = rect_T_from_body(T_world_body, self._T_body_rect0)
         proj = project_map(T_rc, a.xyz[: a.n], self.rectified)

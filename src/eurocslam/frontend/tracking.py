@@ -142,6 +142,8 @@ class LocalMap:
 
     def retire(self, mask: NDArray[np.bool_]) -> None:
         """Move rows `mask` out of the map into the archive."""
+        if not mask.any():
+            return
         self.archive.add({name: getattr(self, name)[mask] for name in _ARCHIVED})
         self.keep(~mask)
 
