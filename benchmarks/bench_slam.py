@@ -15,7 +15,7 @@ to its first S seconds (MH sequences then include the pick-up: a dynamic initial
 `--cache DIR` keeps the rendered replicas between runs. The header states exactly what ran.
 
 usage: .venv/bin/python benchmarks/bench_slam.py [--duration 20] [--sequences V1_01 MH_01]
-       [--cache /tmp/eurocslam_replicas] [--no-vo] [--no-mcap]
+       [--cache /tmp/eurocslam_replicas] [--no-vo] [--no-mcap] [--config FILE]
 The machine is shared and noisy: real-time factors are indicative; compare within one run.
 """
 
@@ -112,8 +112,12 @@ def make_replica(short: str, cache: Path, duration: float | None, seed: int) -> 
     return out
 
 
-def run_one(seq: Path, out: Path, no_imu: bool, mcap: bool) -> dict[str, object]:
+def run_one(
+    seq: Path, out: Path, no_imu: bool, mcap: bool, config: Path | None = None
+) -> dict[str, object]:
     cmd = [str(EXE), "run", str(seq), "-o", str(out), "--no-progress"]
+    if config is not None:
+        cmd += ["--config", str(config)]
     if no_imu:
         cmd.append("--no-imu")
     if not mcap:
@@ -164,6 +168,7 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-vo", action="store_true", help="skip the visual-only runs")
     ap.add_argument("--no-mcap", action="store_true", help="runs without writing run.mcap")
+    ap.add_argument("--config", type=Path, help="a configuration file for every run")
     ap.add_argument("--json", type=Path, help="also save every result as JSON here")
     args = ap.parse_args()
     if not GT_DIR.is_dir():
@@ -174,15 +179,18 @@ def main() -> int:
     span = "full length" if duration is None else f"first {duration:g} s"
     print(
         f"# eurocslam run on semi-real replicas ({span} of each sequence, seed {args.seed}, "
-        f"MCAP {'off' if args.no_mcap else 'on'}); replicas in {args.cache}"
+        f"MCAP {'off' if args.no_mcap else 'on'}"
+        + (f", config {args.config}" if args.config else "")
+        + f"); replicas in {args.cache}"
     )
     rows = []
     results: dict[str, dict[str, object]] = {}
     for short in args.sequences:
         seq = make_replica(short, args.cache, duration, args.seed)
         with tempfile.TemporaryDirectory(prefix="bench_slam_") as tmp:
-            vio = run_one(seq, Path(tmp) / "vio", False, not args.no_mcap)
-            vo = None if args.no_vo else run_one(seq, Path(tmp) / "vo", True, not args.no_mcap)
+            mcap = not args.no_mcap
+            vio = run_one(seq, Path(tmp) / "vio", False, mcap, args.config)
+            vo = None if args.no_vo else run_one(seq, Path(tmp) / "vo", True, mcap, args.config)
         results[short] = {"vio": vio, "vo": vo}
         rows.append((short, vio, vo))
         print(

@@ -95,6 +95,7 @@ class _Segment:
     records: list[_FrameRecord] = field(default_factory=list)
     kf_T_chain: dict[int, F64] = field(default_factory=dict)
     final_kf: dict[int, F64] = field(default_factory=dict)
+    final_frames: dict[int, F64] = field(default_factory=dict)  # record index -> IMU-bridged pose
     landmarks: F64 = field(default_factory=lambda: np.zeros((0, 3)))
     init_mode: str = ""
 
@@ -262,10 +263,26 @@ class SlamPipeline:
         else:
             kf = {k: e.T_world_body for k, e in est.kf_estimates.items()}
             lms = dict(enumerate(est.active_landmarks()[1]))
-        self.summary.add_time("final_batch", (time.perf_counter() - t0) * 1e3)
         seg.final_kf = kf
+        if self.use_imu and self.cfg.backend.final_batch:
+            self._bridge_frames(seg, est)
+        self.summary.add_time("final_batch", (time.perf_counter() - t0) * 1e3)
         seg.landmarks = np.array(list(lms.values())).reshape(-1, 3)
         self.summary.keyframes += len(kf)
+
+    @staticmethod
+    def _bridge_frames(seg: _Segment, est: StereoInertialEstimator) -> None:
+        """Final poses of the frames between two keyframes from the IMU between their final
+        states (the frames' own tracking is noisier than the preintegration over < 0.5 s)."""
+        groups: dict[int, list[int]] = {}
+        kf_t = set(est.segment.kf_times)
+        for i, rec in enumerate(seg.records):
+            if rec.ref_kf >= 0 and rec.t_ns not in kf_t:
+                groups.setdefault(rec.ref_kf, []).append(i)
+        for k, idx in groups.items():
+            Ts = est.imu_bridge(k, [seg.records[i].t_ns for i in idx])
+            if Ts is not None:
+                seg.final_frames.update(zip(idx, Ts))
 
     def _reset(self, t_ns: int, reason: str, T_hint: F64 | None) -> None:
         self.summary.resets.append((t_ns, reason))
@@ -610,9 +627,11 @@ class SlamPipeline:
         for seg in self.segments:
             if not seg.records:
                 continue
-            for rec in seg.records:
+            for i, rec in enumerate(seg.records):
                 ref = rec.ref_kf if rec.ref_kf >= 0 else 0
-                if ref in seg.final_kf and ref in seg.kf_T_chain:
+                if i in seg.final_frames:
+                    T = seg.final_frames[i]
+                elif ref in seg.final_kf and ref in seg.kf_T_chain:
                     T = seg.final_kf[ref] @ inv_T(seg.kf_T_chain[ref]) @ rec.T_chain
                 else:
                     T = rec.T_chain

@@ -39,7 +39,7 @@ from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
 from eurocslam.frontend.features import bucket_select
 from eurocslam.frontend.types import RectifiedStereo
-from eurocslam.geometry import F64, inv_T
+from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
 
 
 class EstimatorFailure(RuntimeError):
@@ -119,6 +119,7 @@ class StereoInertialEstimator:
         self._pim_ok = True
         self.stats = UpdateStats()
         self.kf_estimates: dict[int, NavEstimate] = {}  # keyframe index -> smoothed estimate
+        self.final_states: dict[int, NavEstimate] = {}  # keyframe index -> final batch estimate
         self._window: list[int] = []  # keyframe indices still in the smoother
 
     # ---- setup ----------------------------------------------------------------------------------
@@ -546,15 +547,50 @@ class StereoInertialEstimator:
         except RuntimeError:
             return poses, lms
         out = {}
-        for kk in poses:
+        states = {}
+        for kk, e in self.kf_estimates.items():
             if result.exists(X(kk)):
                 T = result.atPose3(X(kk)).matrix()
-                if np.all(np.isfinite(T)):
-                    out[kk] = T
-                else:
+                if not np.all(np.isfinite(T)):
                     return poses, lms
+                out[kk] = T
+                v, b = np.asarray(result.atVector(V(kk))), result.atConstantBias(B(kk))
+                bg, ba = np.asarray(b.gyroscope()), np.asarray(b.accelerometer())
+                states[kk] = NavEstimate(e.t_ns, T, v, bg, ba)
+        self.final_states = states
         lm_out = {}
         for key_i in lms:
             if result.exists(L(key_i)):
                 lm_out[key_i] = np.asarray(result.atPoint3(L(key_i)))
         return out, lm_out
+
+    def imu_bridge(self, k: int, t_ns: list[int]) -> list[F64] | None:
+        """Poses at `t_ns` (sorted, between final keyframes k and k+1) from the IMU: preintegrated
+        from keyframe k's final state, with the residual at k+1 (its final pose against the
+        prediction) spread linearly in time. None without IMU, a dropout or both final states."""
+        a, b = self.final_states.get(k), self.final_states.get(k + 1)
+        if not self.use_imu or a is None or b is None or not t_ns:
+            return None
+        if t_ns[0] < a.t_ns or t_ns[-1] > b.t_ns:
+            return None
+        ab = bias(a.bg, a.ba)
+        pim = gtsam.PreintegratedCombinedMeasurements(self.params, ab)
+        nav = gtsam.NavState(
+            gtsam.Rot3(a.T_world_body[:3, :3]), gtsam.Point3(*a.T_world_body[:3, 3]), a.v_world
+        )
+        pred, t_prev = [], a.t_ns
+        for t in [*t_ns, b.t_ns]:
+            if not integrate(pim, self.imu, t_prev, t).ok(self.cfg.imu.max_gap_s):
+                return None
+            t_prev = t
+            pred.append(pim.predict(nav, ab).pose().matrix())
+        end = pred.pop()
+        dp = b.T_world_body[:3, 3] - end[:3, 3]
+        dw = so3_log(b.T_world_body[:3, :3] @ end[:3, :3].T)
+        span = float(b.t_ns - a.t_ns)
+        out = []
+        for t, T in zip(t_ns, pred):
+            s = (t - a.t_ns) / span
+            out.append(make_T(so3_exp(s * dw) @ T[:3, :3], T[:3, 3] + s * dp))
+        return out
+
