@@ -207,7 +207,7 @@ def test_smoother_recovers_trajectory_mm() -> None:
 
 
 def test_final_frames_between_keyframes_come_from_the_imu() -> None:
-    errs, est = _run_sim(RunConfig(backend=SIM_BACKEND))
+    _, est = _run_sim(RunConfig(backend=SIM_BACKEND))
     est.final_batch()
     m = lissajous_motion(8.0)
     k = 10  # keyframes 10 and 11: t = 2.5 and 2.75 s
@@ -216,15 +216,19 @@ def test_final_frames_between_keyframes_come_from_the_imu() -> None:
     assert Ts is not None
     a, b = est.final_states[k].T_world_body, est.final_states[k + 1].T_world_body
     kf_err = max(np.linalg.norm(T[:3, 3] - m.pose(t)[:3, 3]) for T, t in ((a, 2.5), (b, 2.75)))
-    for T, t in zip(Ts, ts):
+    for T, t in zip(Ts, ts, strict=True):
         # as good as the keyframes around it (a 0.25 s preintegration adds well under 1 mm)
         assert np.linalg.norm(T[:3, 3] - m.pose(t)[:3, 3]) < kf_err + 1e-3
         assert rotation_angle(T[:3, :3].T @ m.pose(t)[:3, :3]) < 2e-3
     # the end points are the keyframes' own final poses
     np.testing.assert_allclose(est.imu_bridge(k, [_ns(2.75)])[0], b, atol=1e-9)
-    # outside the span, without the IMU, or past the last keyframe: no bridge
+    # outside the span: no bridge; after the last keyframe (7.75 s): the prediction alone
     assert est.imu_bridge(k, [_ns(2.8)]) is None
-    assert est.imu_bridge(len(est.final_states) - 1, [_ns(7.8)]) is None
+    assert est.imu_bridge(k, [_ns(2.45)]) is None
+    (T,) = est.imu_bridge(len(est.final_states) - 1, [_ns(7.85)])
+    assert np.linalg.norm(T[:3, 3] - m.pose(7.85)[:3, 3]) < 0.015
+    est.use_imu = False
+    assert est.imu_bridge(k, [_ns(2.6)]) is None
 
 
 def test_imu_bridges_blind_keyframes() -> None:

@@ -282,7 +282,7 @@ class SlamPipeline:
         for k, idx in groups.items():
             Ts = est.imu_bridge(k, [seg.records[i].t_ns for i in idx])
             if Ts is not None:
-                seg.final_frames.update(zip(idx, Ts))
+                seg.final_frames.update(zip(idx, Ts, strict=True))
 
     def _reset(self, t_ns: int, reason: str, T_hint: F64 | None) -> None:
         self.summary.resets.append((t_ns, reason))

@@ -565,13 +565,16 @@ class StereoInertialEstimator:
         return out, lm_out
 
     def imu_bridge(self, k: int, t_ns: list[int]) -> list[F64] | None:
-        """Poses at `t_ns` (sorted, between final keyframes k and k+1) from the IMU: preintegrated
-        from keyframe k's final state, with the residual at k+1 (its final pose against the
-        prediction) spread linearly in time. None without IMU, a dropout or both final states."""
+        """Poses at `t_ns` (sorted, after final keyframe k and not after k+1) from the IMU:
+        preintegrated from keyframe k's final state, with the residual at k+1 (its final pose
+        against the prediction) spread linearly in time; after the last keyframe, the
+        prediction alone. None without IMU, with a dropout, or outside that span."""
         a, b = self.final_states.get(k), self.final_states.get(k + 1)
-        if not self.use_imu or a is None or b is None or not t_ns:
+        if not self.use_imu or a is None or not t_ns or t_ns[0] < a.t_ns:
             return None
-        if t_ns[0] < a.t_ns or t_ns[-1] > b.t_ns:
+        if b is None and k + 1 < len(self.segment.kf_times):
+            return None  # k + 1 exists but has no final state
+        if b is not None and t_ns[-1] > b.t_ns:
             return None
         ab = bias(a.bg, a.ba)
         pim = gtsam.PreintegratedCombinedMeasurements(self.params, ab)
@@ -579,18 +582,19 @@ class StereoInertialEstimator:
             gtsam.Rot3(a.T_world_body[:3, :3]), gtsam.Point3(*a.T_world_body[:3, 3]), a.v_world
         )
         pred, t_prev = [], a.t_ns
-        for t in [*t_ns, b.t_ns]:
+        for t in [*t_ns] + ([b.t_ns] if b is not None else []):
             if not integrate(pim, self.imu, t_prev, t).ok(self.cfg.imu.max_gap_s):
                 return None
             t_prev = t
             pred.append(pim.predict(nav, ab).pose().matrix())
+        if b is None:
+            return pred
         end = pred.pop()
         dp = b.T_world_body[:3, 3] - end[:3, 3]
         dw = so3_log(b.T_world_body[:3, :3] @ end[:3, :3].T)
         span = float(b.t_ns - a.t_ns)
         out = []
-        for t, T in zip(t_ns, pred):
+        for t, T in zip(t_ns, pred, strict=True):
             s = (t - a.t_ns) / span
             out.append(make_T(so3_exp(s * dw) @ T[:3, :3], T[:3, 3] + s * dp))
         return out
-
