@@ -331,8 +331,9 @@ def optimize_pose(
 
     ORB-SLAM's schedule: `rounds` rounds of Huber-weighted iterations; after each round every
     measurement is re-classified by its chi-square (outliers get zero weight, may come back),
-    the robust kernel is dropped in the last round. `sigma` is the pixel sigma per measurement
-    (octave scale). Returns (T_rect0_world, inlier mask, chi2 per measurement).
+    the robust kernel is dropped in the last round, and a robust round whose inliers are the
+    last round's is skipped (it would stop where that one did). `sigma` is the pixel sigma per
+    measurement (octave scale). Returns (T_rect0_world, inlier mask, chi2 per measurement).
     """
     T = rigid(T_rect0_world)
     n = xyz.shape[0]
@@ -347,21 +348,29 @@ def optimize_pose(
     thr = np.where(stereo, chi2_stereo, chi2_mono)
     fx, fy, cx, cy = geom.fx, geom.fy, geom.cx, geom.cy
     fxb = fx * geom.baseline
+    st = stereo.astype(np.float64)
+    xyz_t = np.ascontiguousarray(xyz.T)
 
     def residuals(T: F64) -> tuple[F64, ...]:
-        X, Y, Z = (xyz @ T[:3, :3].T + T[:3, 3]).T
+        X, Y, Z = T[:3, :3] @ xyz_t + T[:3, 3:4]
         front = Z > 0.05
         iz = 1.0 / np.where(front, Z, 1.0)
         u = fx * X * iz + cx
         ru = u - m_u
-        rr = np.where(stereo, u - fxb * iz - m_r, 0.0)
+        rr = (u - fxb * iz - m_r) * st
         rv = fy * Y * iz + cy - m_v
         e2 = (ru * ru + rr * rr + rv * rv) * inv_s2
         return X, Y, Z, iz, front, ru, rr, rv, e2
 
-    J = np.empty((3, n, 6))
+    # J[k, m] (6, 3, n): d(measurement m = u, uR, v)/d(parameter k = dt, dw); rows contiguous
+    J = np.empty((6, 3, n))
+    r = np.empty((3, n))
+    previous: NDArray[np.bool_] | None = None
     for rnd in range(rounds):
         robust = rnd < rounds - 1
+        if robust and previous is not None and np.array_equal(previous, inlier):
+            continue  # the last round's inliers again: its converged pose stands
+        previous = inlier
         for _ in range(iterations):
             X, Y, Z, iz, front, ru, rr, rv, e2 = residuals(T)
             good = inlier & front
@@ -370,33 +379,33 @@ def optimize_pose(
             w = inv_s2 * good
             if robust:  # Huber: weight sqrt(delta^2 / e^2) beyond the chi-square threshold
                 w = np.where(e2 > thr, w * np.sqrt(thr / np.maximum(e2, 1e-12)), w)
-            # d(u, uR, v)/d(dt, dw) for pc' = exp(dw) pc + dt; rotation part j . (-[pc]x)
+            # for pc' = exp(dw) pc + dt; rotation part j . (-[pc]x)
             a = fx * iz
             c = fy * iz
             du_dz = -X * a * iz
             duR_dz = du_dz + fxb * iz * iz
             dv_dz = -Y * c * iz
-            J[0, :, 0] = a
-            J[0, :, 1] = 0.0
-            J[0, :, 2] = du_dz
-            J[0, :, 3] = Y * du_dz
-            J[0, :, 4] = Z * a - X * du_dz
-            J[0, :, 5] = -Y * a
-            J[1] = J[0]
-            J[1, :, 2] = duR_dz
-            J[1, :, 3] = Y * duR_dz
-            J[1, :, 4] = Z * a - X * duR_dz
-            J[1] *= stereo[:, None]
-            J[2, :, 0] = 0.0
-            J[2, :, 1] = c
-            J[2, :, 2] = dv_dz
-            J[2, :, 3] = Y * dv_dz - Z * c
-            J[2, :, 4] = -X * dv_dz
-            J[2, :, 5] = X * c
-            Jf = J.reshape(3 * n, 6)
-            JwT = (Jf * np.tile(w, 3)[:, None]).T
-            H = JwT @ Jf
-            g = JwT @ np.concatenate([ru, rr, rv])
+            J[0, 0] = a
+            J[1, 0] = 0.0
+            J[2, 0] = du_dz
+            J[3, 0] = Y * du_dz
+            J[4, 0] = Z * a - X * du_dz
+            J[5, 0] = -Y * a
+            J[:, 1] = J[:, 0]
+            J[2, 1] = duR_dz
+            J[3, 1] = Y * duR_dz
+            J[4, 1] = Z * a - X * duR_dz
+            J[:, 1] *= st
+            J[0, 2] = 0.0
+            J[1, 2] = c
+            J[2, 2] = dv_dz
+            J[3, 2] = Y * dv_dz - Z * c
+            J[4, 2] = -X * dv_dz
+            J[5, 2] = X * c
+            r[0], r[1], r[2] = ru, rr, rv
+            Jw = (J * w).reshape(6, 3 * n)
+            H = Jw @ J.reshape(6, 3 * n).T
+            g = Jw @ r.reshape(-1)
             try:
                 dx = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
             except np.linalg.LinAlgError:
