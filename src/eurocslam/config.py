@@ -76,6 +76,10 @@ class BackendConfig:
     correct_whole_map: bool = True  # move the rest of the frontend map with the keyframe
     final_batch: bool = True  # one full Levenberg-Marquardt over each segment at the end
     final_batch_max_iterations: int = 5  # starts from the smoother: converges fast
+    # final batch: when the IMU factors' chi-square per redundancy exceeds the stereo factors'
+    # by more than this ratio, the IMU covariances are scaled by the ratio and the batch is run
+    # again (a variance-component step; 0: never). Simulated IMUs: below 1; V1_01's real IMU: 4
+    final_imu_reweight_above: float = 2.0
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ every frame as it is processed (`FrameObserver.on_frame`).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -33,7 +34,12 @@ from typing import Protocol
 
 import numpy as np
 
-from eurocslam.backend.estimator import EstimatorFailure, NavEstimate, StereoInertialEstimator
+from eurocslam.backend.estimator import (
+    EstimatorFailure,
+    ImuCheck,
+    NavEstimate,
+    StereoInertialEstimator,
+)
 from eurocslam.backend.health import check_lost, check_state, check_step
 from eurocslam.backend.initializer import (
     InitialState,
@@ -112,6 +118,7 @@ class RunSummary:
     segments: int = 0
     resets: list[tuple[int, str]] = field(default_factory=list)
     init_modes: list[str] = field(default_factory=list)
+    imu_checks: list[ImuCheck] = field(default_factory=list)  # final batch, per segment
     state_frames: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
     wall_s: float = 0.0
@@ -158,6 +165,14 @@ class RunSummary:
             "segments": self.segments,
             "resets": [{"t_ns": t, "reason": r} for t, r in self.resets],
             "init_modes": self.init_modes,
+            "imu_check": [
+                {
+                    "ratio": round(c.ratio, 3),
+                    "accel_scale": round(c.accel_scale, 3),
+                    "ratio_after": None if math.isnan(c.ratio_after) else round(c.ratio_after, 3),
+                }
+                for c in self.imu_checks
+            ],
             "state_frames": self.state_frames,
             "duration_s": round(self.duration_s, 3),
             "wall_s": round(self.wall_s, 3),
@@ -185,6 +200,17 @@ class RunSummary:
             f"{self.duration_s:.1f} s of data in {self.wall_s:.1f} s wall "
             f"(real-time factor {self.realtime_factor:.2f}), {self.cpu_s:.1f} s CPU",
         ]
+        for c in self.imu_checks:
+            out.append(
+                f"final batch: IMU residuals {c.ratio:.2f}x the stereo residuals (chi-square per "
+                "redundancy)"
+                + (
+                    f"; accelerometer covariances scaled by {c.accel_scale:.1f}: "
+                    f"{c.ratio_after:.2f}x"
+                    if c.accel_scale != 1.0
+                    else ""
+                )
+            )
         for t, r in self.resets:
             out.append(f"  reset at t={t} ns: {r}")
         out.append(f"  {'stage':<18}{'calls':>7}{'median ms':>11}{'total s':>9}{'share':>8}")
@@ -264,6 +290,8 @@ class SlamPipeline:
             kf = {k: e.T_world_body for k, e in est.kf_estimates.items()}
             lms = dict(enumerate(est.active_landmarks()[1]))
         seg.final_kf = kf
+        if est.imu_check is not None:
+            self.summary.imu_checks.append(est.imu_check)
         if self.use_imu and self.cfg.backend.final_batch:
             self._bridge_frames(seg, est)
         self.summary.add_time("final_batch", (time.perf_counter() - t0) * 1e3)

@@ -25,15 +25,19 @@ from eurocslam.dataset.types import ImuData
 from eurocslam.geometry import F64
 
 
-def make_params(imu: ImuCalib, cfg: ImuConfig | None = None) -> gtsam.PreintegrationCombinedParams:
-    """`PreintegrationCombinedParams` (z-up gravity) from the IMU calibration."""
+def make_params(
+    imu: ImuCalib, cfg: ImuConfig | None = None, accel_variance_scale: float = 1.0
+) -> gtsam.PreintegrationCombinedParams:
+    """`PreintegrationCombinedParams` (z-up gravity) from the IMU calibration; the
+    accelerometer's noise and bias random walk covariances times `accel_variance_scale`."""
     cfg = cfg or ImuConfig()
     p = gtsam.PreintegrationCombinedParams.MakeSharedU(cfg.gravity)
     i3 = np.eye(3)
+    a3 = i3 * accel_variance_scale
     p.setGyroscopeCovariance((imu.gyro_noise_density * cfg.gyro_noise_scale) ** 2 * i3)
-    p.setAccelerometerCovariance((imu.accel_noise_density * cfg.accel_noise_scale) ** 2 * i3)
+    p.setAccelerometerCovariance((imu.accel_noise_density * cfg.accel_noise_scale) ** 2 * a3)
     p.setBiasOmegaCovariance((imu.gyro_random_walk * cfg.gyro_bias_walk_scale) ** 2 * i3)
-    p.setBiasAccCovariance((imu.accel_random_walk * cfg.accel_bias_walk_scale) ** 2 * i3)
+    p.setBiasAccCovariance((imu.accel_random_walk * cfg.accel_bias_walk_scale) ** 2 * a3)
     p.setIntegrationCovariance(cfg.integration_sigma**2 * i3)
     T_body_imu = np.asarray(imu.T_body_imu, dtype=np.float64)
     if not np.allclose(T_body_imu, np.eye(4), atol=1e-9):
