@@ -213,7 +213,7 @@ def main() -> int:
 
     hdr = (
         f"{'seq':<6}{'dur s':>6}{'VIO ATE':>9}{'online':>8}{'VO ATE':>8}{'VIO<VO':>7}"
-        f"{'pose %':>8}{'resets':>7}{'init':>8}{'IMU x':>7}{'RTF':>6}{'CPU/s':>6}{'RSS MB':>8}"
+        f"{'pose %':>8}{'resets':>7}{'init':>8}{'IMU x':>9}{'RTF':>6}{'CPU/s':>6}{'RSS MB':>8}"
         f"{'ORB3*':>7}{'Basalt*':>8}{'VINS*':>7}"
     )
     print(hdr)
@@ -234,7 +234,7 @@ def main() -> int:
             f"{short:<6}{s.get('duration_s', 0):>6.1f}{fmt(vio['ate_final'], '.4f'):>9}"
             f"{fmt(vio['ate_online'], '.4f'):>8}{fmt(vo_ate, '.4f'):>8}{better:>7}"
             f"{100 * s.get('coverage', 0):>8.1f}{len(s.get('resets', [])):>7}"
-            f"{','.join(s.get('init_modes', [])):>8}{imu_ratio(s):>7}"
+            f"{','.join(s.get('init_modes', [])):>8}{imu_ratio(s):>9}"
             f"{s.get('realtime_factor', 0):>6.2f}"
             f"{s.get('cpu_s', 0) / max(s.get('duration_s', 1), 1e-9):>6.2f}"
             f"{vio['rss_mb']:>8.0f}{fmt(pub[0]):>7}{fmt(pub[1], '.2f'):>8}{fmt(pub[2]):>7}"
