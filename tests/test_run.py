@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
+from eurocslam.backend.estimator import ImuCheck
 from eurocslam.cli import main
 from eurocslam.config import load_config
 from eurocslam.io.ply import read_ply
 from eurocslam.io.trajectory_io import read_euroc_csv, read_tum
+from eurocslam.pipeline import RunSummary
 
 SLAM_TOPICS = {
     "/tf",
@@ -69,6 +72,9 @@ def test_outputs_written(run_out: Path) -> None:
     assert summary["frames_with_pose"] == summary["frames"] == len(on)
     assert summary["init_modes"] == ["static"]
     assert {"orb", "tracking", "backend", "output"} <= set(summary["timings"])
+    (check,) = summary["imu_check"]  # the final batch's IMU check, one per segment
+    assert set(check) == {"ratio", "accel_scale", "ratio_after"}
+    assert "final batch: " in (run_out / "summary.txt").read_text()
     ply = read_ply(run_out / "map.ply")
     assert ply["x"].size == summary["landmarks"] > 0
     # the resolved config reloads to the same values
@@ -115,3 +121,15 @@ def test_missing_sequence_is_a_clean_error(
     rc = main(["run", str(tmp_path / "nope"), "-o", str(tmp_path / "o")])
     assert rc == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_summary_reports_the_imu_check() -> None:
+    s = RunSummary(imu_checks=[ImuCheck(0.31), ImuCheck(4.2, 7.0, 1.2), ImuCheck(math.nan)])
+    lines = [x for x in s.lines() if x.startswith("final batch")]
+    assert lines[0].endswith("0.31x the stereo residuals (chi-square per redundancy)")
+    assert lines[1].endswith("accelerometer covariances scaled by 7.0: 1.20x")
+    assert lines[2] == "final batch: too few IMU or stereo factors to check the IMU"
+    d = s.to_dict()["imu_check"]
+    assert d[0] == {"ratio": 0.31, "accel_scale": 1.0, "ratio_after": None}
+    assert d[2]["ratio"] is None
+    json.dumps(d, allow_nan=False)

@@ -77,8 +77,8 @@ class BackendConfig:
     final_batch: bool = True  # one full Levenberg-Marquardt over each segment at the end
     final_batch_max_iterations: int = 5  # starts from the smoother: converges fast
     # final batch: when the IMU factors' chi-square per redundancy exceeds the stereo factors'
-    # by more than this ratio, the IMU covariances are scaled by the ratio and the batch is run
-    # again (a variance-component step; 0: never). Simulated IMUs: below 1; V1_01's real IMU: 4
+    # by more than this ratio, the accelerometer's covariances are scaled by it and the batch is
+    # run again (variance-component rounds; 0: never). Simulated IMUs: 0.3-0.5; V1_01's real: 4
     final_imu_reweight_above: float = 2.0
 
 

@@ -106,6 +106,11 @@ class _Segment:
     init_mode: str = ""
 
 
+def _finite(x: float) -> float | None:
+    """Rounded for JSON; NaN (not measured) as null."""
+    return None if math.isnan(x) else round(x, 3)
+
+
 @dataclass
 class RunSummary:
     sequence: str = ""
@@ -167,9 +172,9 @@ class RunSummary:
             "init_modes": self.init_modes,
             "imu_check": [
                 {
-                    "ratio": round(c.ratio, 3),
+                    "ratio": _finite(c.ratio),
                     "accel_scale": round(c.accel_scale, 3),
-                    "ratio_after": None if math.isnan(c.ratio_after) else round(c.ratio_after, 3),
+                    "ratio_after": _finite(c.ratio_after),
                 }
                 for c in self.imu_checks
             ],
@@ -201,6 +206,9 @@ class RunSummary:
             f"(real-time factor {self.realtime_factor:.2f}), {self.cpu_s:.1f} s CPU",
         ]
         for c in self.imu_checks:
+            if math.isnan(c.ratio):
+                out.append("final batch: too few IMU or stereo factors to check the IMU")
+                continue
             out.append(
                 f"final batch: IMU residuals {c.ratio:.2f}x the stereo residuals (chi-square per "
                 "redundancy)"

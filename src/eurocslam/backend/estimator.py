@@ -546,8 +546,8 @@ class StereoInertialEstimator:
         accelerometer's noise and bias-walk covariances are scaled by the ratio and the batch
         runs again from the last result, until the ratio is near 1 (at most
         `REWEIGHT_ROUNDS` rounds). On V1_01 the accelerometer carries the disagreement (its
-        residual components 15x a simulated IMU's, the gyro's 5x): scaling the gyro too left
-        the trajectory 0.2-0.4 mm worse.
+        residual components 15x a simulated IMU's, the gyro's 5x): scaling the gyro's too left
+        the keyframes 0.2-0.35 mm worse.
 
         Returns (keyframe index -> T_world_body, landmark key -> position). Falls back to the
         smoother's estimates if the batch fails to converge."""
