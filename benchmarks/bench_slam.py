@@ -234,7 +234,7 @@ def main() -> int:
             f"{short:<6}{s.get('duration_s', 0):>6.1f}{fmt(vio['ate_final'], '.4f'):>9}"
             f"{fmt(vio['ate_online'], '.4f'):>8}{fmt(vo_ate, '.4f'):>8}{better:>7}"
             f"{100 * s.get('coverage', 0):>8.1f}{len(s.get('resets', [])):>7}"
-            f"{','.join(s.get('init_modes', [])):>8}{imu_ratio(s):>9}"
+            f" {','.join(s.get('init_modes', [])):>7}{imu_ratio(s):>9}"
             f"{s.get('realtime_factor', 0):>6.2f}"
             f"{s.get('cpu_s', 0) / max(s.get('duration_s', 1), 1e-9):>6.2f}"
             f"{vio['rss_mb']:>8.0f}{fmt(pub[0]):>7}{fmt(pub[1], '.2f'):>8}{fmt(pub[2]):>7}"
