@@ -156,6 +156,8 @@ def imu_ratio(summary: dict[str, Any]) -> str:
     if not checks:
         return "-"
     c = checks[0]
+    if c.get("ratio") is None:  # too few factors to check
+        return "n/a"
     after = c.get("ratio_after")
     return f"{c['ratio']:.2f}" if after is None else f"{c['ratio']:.1f}>{after:.1f}"
 
