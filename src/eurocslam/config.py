@@ -47,7 +47,9 @@ class InitConfig:
     dynamic_window_s: float = 1.5  # stereo VO span aligned with the IMU for a moving start
     dynamic_min_keyframes: int = 5
     # priors at initialisation (stddev)
-    prior_rot_sigma: float = 0.01  # rad (roll/pitch from gravity, yaw fixed by gauge)
+    prior_yaw_sigma: float = 0.01  # rad: the first yaw is the gauge (nothing observes it)
+    prior_tilt_sigma_static: float = 0.01  # rad: roll/pitch from the still IMU's mean
+    prior_tilt_sigma_dynamic: float = 0.01  # rad: roll/pitch from the VO/IMU alignment
     prior_pos_sigma: float = 0.001  # m
     prior_vel_sigma_static: float = 0.01  # m/s
     prior_vel_sigma_dynamic: float = 0.1  # m/s
@@ -76,6 +78,9 @@ class BackendConfig:
     correct_whole_map: bool = True  # move the rest of the frontend map with the keyframe
     final_batch: bool = True  # one full Levenberg-Marquardt over each segment at the end
     final_batch_max_iterations: int = 5  # starts from the smoother: converges fast
+    # stereo observations per keyframe the final batch takes, the smoother's included (it runs
+    # once: no per-frame cost); at most the smoother's cap: the smoother's alone
+    final_max_landmarks_per_keyframe: int = 100
     # final batch: when the IMU factors' chi-square per redundancy exceeds the stereo factors'
     # by more than this ratio, the accelerometer's covariances are scaled by it and the batch is
     # run again (variance-component rounds; 0: never). Simulated IMUs: 0.3-0.5; V1_01's real: 4
@@ -184,7 +189,9 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
         "init": (
             "static_window_s",
             "dynamic_window_s",
-            "prior_rot_sigma",
+            "prior_yaw_sigma",
+            "prior_tilt_sigma_static",
+            "prior_tilt_sigma_dynamic",
             "prior_pos_sigma",
             "prior_vel_sigma_static",
             "prior_vel_sigma_dynamic",

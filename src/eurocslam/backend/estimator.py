@@ -80,6 +80,9 @@ class _Segment:
     values: dict[int, object] = field(default_factory=dict)  # key -> latest estimate
     kf_times: list[int] = field(default_factory=list)
     kf_index0: int = 0
+    # stereo observations beyond the smoother's cap, for the final batch:
+    # (keyframe index, global landmark key, uL, uR, v, sigma scale)
+    final_only: list[tuple[int, int, float, float, float, float]] = field(default_factory=list)
 
 
 REWEIGHT_ROUNDS = 3  # variance-component rounds of the final batch, at most
@@ -127,6 +130,7 @@ class StereoInertialEstimator:
         self._lm_fid = np.zeros(1024, np.int64)
         self._lm_active = np.zeros(1024, bool)
         self._lm_gkey = np.zeros(1024, np.int64)  # the landmark's key in the global graph
+        self._lm_nobs = np.zeros(1024, np.int64)  # per global key: observations in the segment
         self.segment = _Segment()
         self.pim: gtsam.PreintegratedCombinedMeasurements | None = None
         self._pim_t_ns = 0
@@ -170,10 +174,14 @@ class StereoInertialEstimator:
         values = gtsam.Values()
         stamps: dict[int, float] = {}
         dynamic = init.mode == "dynamic"
-        rot_sigma = c.prior_rot_sigma
-        pose_noise = gtsam.noiseModel.Diagonal.Sigmas(
-            np.array([rot_sigma] * 3 + [c.prior_pos_sigma] * 3)
-        )
+        # first pose: yaw and position are the gauge; roll and pitch come from gravity. Pose3's
+        # rotation tangent is in the body frame: the world-frame sigmas are rotated into it
+        tilt = c.prior_tilt_sigma_dynamic if dynamic else c.prior_tilt_sigma_static
+        R = np.asarray(init.T_world_body, float)[:3, :3]
+        cov = np.zeros((6, 6))
+        cov[:3, :3] = R.T @ np.diag([tilt**2, tilt**2, c.prior_yaw_sigma**2]) @ R
+        cov[3:, 3:] = np.eye(3) * c.prior_pos_sigma**2
+        pose_noise = gtsam.noiseModel.Gaussian.Covariance(cov)
         vel_sigma = c.prior_vel_sigma_dynamic if dynamic else c.prior_vel_sigma_static
         if not self.use_imu:
             vel_sigma = 1.0
@@ -389,22 +397,34 @@ class StereoInertialEstimator:
         ok &= depth <= b.max_depth_m
         idx = np.nonzero(ok)[0]
         cap = b.max_landmarks_per_keyframe if self.use_imu else b.max_landmarks_per_keyframe_no_imu
+        final_cap = max(cap, b.final_max_landmarks_per_keyframe) if b.final_batch else cap
+        extra = idx[:0]
         if idx.size > cap:
             # spread over the image (4 x 3 cells, round-robin), in each cell landmarks already
             # in the graph first, then the nearest: the nearest alone can crowd one region
             known = np.array([self._is_active(int(ids[i])) for i in idx], dtype=bool)
             priority = np.where(known, 1e6, 0.0) - depth[idx]
-            pick = bucket_select(
-                uv[idx][:, [0, 2]],
-                priority,
-                cap,
-                st.width,
-                st.height,
-                4,
-                3,
-            )
+            pick = bucket_select(uv[idx][:, [0, 2]], priority, cap, st.width, st.height, 4, 3)
+            rest = np.setdiff1d(np.arange(idx.size), pick)
+            if final_cap > cap:  # the final batch's share, picked the same way from the rest
+                more = bucket_select(
+                    uv[idx[rest]][:, [0, 2]],
+                    priority[rest],
+                    final_cap - cap,
+                    st.width,
+                    st.height,
+                    4,
+                    3,
+                )
+                extra = idx[rest[more]]
             idx = idx[pick]
         T_world_rect0 = np.asarray(T_world_body) @ st.T_body_rect0
+
+        def world_point(i: int) -> F64:
+            z = depth[i]
+            Xc = np.array([(uv[i, 0] - st.cx) * z / st.fx, (uv[i, 2] - st.cy) * z / st.fy, z])
+            return T_world_rect0[:3, :3] @ Xc + T_world_rect0[:3, 3]
+
         n_new = 0
         subst: dict[int, gtsam.NonlinearFactor] = {}
         for i in idx.tolist():
@@ -412,9 +432,7 @@ class StereoInertialEstimator:
             key_i = self.lm_key.get(fid)
             if key_i is None or not self._lm_active[key_i]:
                 key_i = self._new_landmark_key(fid)
-                z = depth[i]
-                Xc = np.array([(uv[i, 0] - st.cx) * z / st.fx, (uv[i, 2] - st.cy) * z / st.fy, z])
-                Xw = T_world_rect0[:3, :3] @ Xc + T_world_rect0[:3, 3]
+                Xw = world_point(i)
                 values.insert(L(key_i), gtsam.Point3(*Xw))
                 self._lm_pos[key_i] = Xw
                 n_new += 1
@@ -422,6 +440,7 @@ class StereoInertialEstimator:
             meas = gtsam.StereoPoint2(uv[i, 0], uv[i, 1], uv[i, 2])
             noise = self._stereo_noise(float(scale[i]))
             gkey = int(self._lm_gkey[key_i])
+            self._lm_nobs[gkey] += 1
             if gkey != key_i:
                 subst[graph.size()] = gtsam.GenericStereoFactor3D(
                     meas, noise, X(k), L(gkey), self.K, self.body_P_rect0
@@ -429,6 +448,18 @@ class StereoInertialEstimator:
             graph.add(
                 gtsam.GenericStereoFactor3D(meas, noise, X(k), L(key_i), self.K, self.body_P_rect0)
             )
+        # beyond the smoother's cap: observations for the final batch alone. A landmark not yet
+        # known gets a key that the smoother never holds (it re-keys it if it picks it later)
+        for i in extra.tolist():
+            fid = int(ids[i])
+            key_i = self.lm_key.get(fid)
+            if key_i is None:
+                key_i = self._new_landmark_key(fid)
+                self._lm_active[key_i] = False
+                self._lm_pos[key_i] = world_point(i)
+            gkey = int(self._lm_gkey[key_i])
+            self._lm_nobs[gkey] += 1
+            self.segment.final_only.append((k, gkey, uv[i, 0], uv[i, 1], uv[i, 2], scale[i]))
         self.stats.n_stereo_factors = len(idx)
         self.stats.n_new_landmarks = n_new
         return subst
@@ -525,6 +556,7 @@ class StereoInertialEstimator:
             self._lm_pos = np.resize(self._lm_pos, (n, 3))
             self._lm_fid = np.resize(self._lm_fid, n)
             self._lm_gkey = np.resize(self._lm_gkey, n)
+            self._lm_nobs = np.concatenate([self._lm_nobs, np.zeros(n - self._lm_nobs.size, np.int64)])
             act = np.zeros(n, bool)
             act[: self._lm_active.size] = self._lm_active
             self._lm_active = act
@@ -557,12 +589,14 @@ class StereoInertialEstimator:
                 vals.insert(key, np.asarray(v, dtype=float))
             else:
                 vals.insert(key, v)
+        graph = self._final_graph()
         # one variable per landmark: its first key (its later keys' factors were re-keyed)
-        gkeys = np.unique(self._lm_gkey[: self._next_lm])
+        keys = np.asarray(graph.keyVector(), dtype=np.uint64)
+        is_l = (keys >> np.uint64(56)) == np.uint64(ord("l"))
+        gkeys = (keys[is_l] & np.uint64((1 << 56) - 1)).astype(np.int64)
         lms = {int(i): self._lm_pos[i].copy() for i in gkeys}
         for i, p in lms.items():
             vals.insert(L(i), gtsam.Point3(*p))
-        graph = self.segment.graph
         poses = {kk: e.T_world_body for kk, e in self.kf_estimates.items()}
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(max_iterations)
@@ -587,6 +621,26 @@ class StereoInertialEstimator:
             if result.exists(L(key_i)):
                 lm_out[key_i] = np.asarray(result.atPoint3(L(key_i)))
         return out, lm_out
+
+    def _final_graph(self) -> gtsam.NonlinearFactorGraph:
+        """The segment's factors plus its final-only stereo observations of landmarks seen
+        at least twice (one observation only adds a landmark, no constraint)."""
+        extra = [o for o in self.segment.final_only if self._lm_nobs[o[1]] >= 2]
+        if not extra:
+            return self.segment.graph
+        graph = gtsam.NonlinearFactorGraph(self.segment.graph)
+        for k, gkey, ul, ur, v, scale in extra:
+            graph.add(
+                gtsam.GenericStereoFactor3D(
+                    gtsam.StereoPoint2(ul, ur, v),
+                    self._stereo_noise(float(scale)),
+                    X(k),
+                    L(gkey),
+                    self.K,
+                    self.body_P_rect0,
+                )
+            )
+        return graph
 
     def _optimize(
         self,
