@@ -308,6 +308,32 @@ def test_stereo_noise_follows_the_keypoint_scale() -> None:
     assert sigmas == [round(1.2**k, 6) for k in range(4)]
 
 
+@pytest.mark.parametrize("mode", ["static", "dynamic"])
+def test_first_pose_prior_separates_tilt_from_yaw(mode: str) -> None:
+    """The first pose's rotation prior has one sigma for yaw (the gauge) and one for roll and
+    pitch (per start mode), about the world's axes whatever the body's attitude."""
+    init_cfg = InitConfig(
+        prior_yaw_sigma=0.01, prior_tilt_sigma_static=0.05, prior_tilt_sigma_dynamic=0.02
+    )
+    m = lissajous_motion(2.0)
+    st = euroc_like_stereo()
+    est = StereoInertialEstimator(RIG.imu, st, _noisy_imu(m), RunConfig(init=init_cfg))
+    T = m.pose(0.0)  # a tilted, yawed body
+    o = observe(T, random_landmarks(3000), st, pixel_sigma=0.5)
+    est.initialize(InitialState(_ns(0.0), T, _velocity(m, 0.0), BG, BA, mode), o.ids, o.uv)
+    g = est.segment.graph
+    prior = next(g.at(i) for i in range(g.size()) if isinstance(g.at(i), gtsam.PriorFactorPose3))
+    tilt = 0.05 if mode == "static" else 0.02
+    for axis, sigma in ((0, tilt), (1, tilt), (2, 0.01)):
+        w = np.zeros(3)
+        w[axis] = 0.001  # a small rotation about the world axis: whitened, 0.001 / sigma
+        R = gtsam.Rot3.Expmap(w).matrix() @ T[:3, :3]
+        moved = gtsam.Pose3(gtsam.Rot3(R), T[:3, 3])
+        vals = gtsam.Values()
+        vals.insert(prior.keys()[0], moved)
+        assert prior.error(vals) == pytest.approx(0.5 * (0.001 / sigma) ** 2, rel=1e-3)
+
+
 def test_final_batch_joins_a_landmark_the_smoother_let_go(monkeypatch: pytest.MonkeyPatch) -> None:
     """A landmark seen again after the lag gets a fresh smoother key, but the global graph keeps
     its first key: the final batch ties the keyframes then and now (a loop closure). Without
