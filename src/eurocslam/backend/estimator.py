@@ -556,10 +556,8 @@ class StereoInertialEstimator:
             self._lm_pos = np.resize(self._lm_pos, (n, 3))
             self._lm_fid = np.resize(self._lm_fid, n)
             self._lm_gkey = np.resize(self._lm_gkey, n)
-            self._lm_nobs = np.concatenate([self._lm_nobs, np.zeros(n - self._lm_nobs.size, np.int64)])
-            act = np.zeros(n, bool)
-            act[: self._lm_active.size] = self._lm_active
-            self._lm_active = act
+            self._lm_nobs = np.pad(self._lm_nobs, (0, n - self._lm_nobs.size))  # zeros
+            self._lm_active = np.pad(self._lm_active, (0, n - self._lm_active.size))  # False
         old = self.lm_key.get(fid)
         self._lm_gkey[key_i] = key_i if old is None else self._lm_gkey[old]
         self.lm_key[fid] = key_i
