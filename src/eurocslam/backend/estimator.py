@@ -567,7 +567,8 @@ class StereoInertialEstimator:
 
     # ---- final batch ---------------------------------------------------------------------------
     def final_batch(self, max_iterations: int = 5) -> tuple[dict[int, F64], dict[int, F64]]:
-        """Full Levenberg-Marquardt over every factor of the segment.
+        """Full Levenberg-Marquardt over every factor of the segment and the stereo observations
+        kept for it alone (`_final_graph`).
 
         With the IMU, a variance-component estimate follows: the IMU factors' chi-square per
         redundancy against the stereo factors' (`imu_check`). When the IMU disagrees with the
