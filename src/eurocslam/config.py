@@ -83,7 +83,7 @@ class BackendConfig:
     final_max_landmarks_per_keyframe: int = 250
     # final batch: when the IMU factors' chi-square per redundancy exceeds the stereo factors'
     # by more than this ratio, the accelerometer's covariances are scaled by it and the batch is
-    # run again (variance-component rounds; 0: never). Simulated IMUs: 0.3-0.5; V1_01's real: 4
+    # run again (variance-component rounds; 0: never). Simulated IMUs: 0.4-0.8; V1_01's real: 4-5
     final_imu_reweight_above: float = 2.0
 
 

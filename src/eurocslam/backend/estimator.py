@@ -26,6 +26,7 @@ health logic resets and starts a new segment.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import gtsam
@@ -87,6 +88,13 @@ class _Segment:
 
 REWEIGHT_ROUNDS = 3  # variance-component rounds of the final batch, at most
 REWEIGHT_DONE = 1.25  # they stop once the IMU/stereo residual ratio is below this
+
+
+def _landmark_indices(keys: Iterable[int]) -> np.ndarray:
+    """The indices of the landmark symbols L(i) among gtsam keys, in the keys' order."""
+    k = np.asarray(keys, dtype=np.uint64)
+    is_l = (k >> np.uint64(56)) == np.uint64(ord("l"))
+    return (k[is_l] & np.uint64((1 << 56) - 1)).astype(np.int64)
 
 
 def _pose(T: F64) -> gtsam.Pose3:
@@ -491,9 +499,7 @@ class StereoInertialEstimator:
         self._est = est
         # landmarks still in the window, read in one call (keys sort 'l' before 'v': the
         # landmarks are the first rows of extractPoint3, which also returns the velocities)
-        keys = np.asarray(est.keys(), dtype=np.uint64)
-        is_l = (keys >> np.uint64(56)) == np.uint64(ord("l"))
-        lidx = (keys[is_l] & np.uint64((1 << 56) - 1)).astype(np.int64)
+        lidx = _landmark_indices(est.keys())
         self._lm_active[: self._next_lm] = False
         if lidx.size:
             pts = np.asarray(gtsam.utilities.extractPoint3(est))[: lidx.size]
@@ -590,9 +596,7 @@ class StereoInertialEstimator:
                 vals.insert(key, v)
         graph = self._final_graph()
         # one variable per landmark: its first key (its later keys' factors were re-keyed)
-        keys = np.asarray(graph.keyVector(), dtype=np.uint64)
-        is_l = (keys >> np.uint64(56)) == np.uint64(ord("l"))
-        gkeys = (keys[is_l] & np.uint64((1 << 56) - 1)).astype(np.int64)
+        gkeys = _landmark_indices(graph.keyVector())
         lms = {int(i): self._lm_pos[i].copy() for i in gkeys}
         for i, p in lms.items():
             vals.insert(L(i), gtsam.Point3(*p))
