@@ -162,6 +162,38 @@ def imu_ratio(summary: dict[str, Any]) -> str:
     return f"{c['ratio']:.2f}" if after is None else f"{c['ratio']:.1f}>{after:.1f}"
 
 
+def machine_speed(seq: Path, n_images: int = 20) -> float:
+    """A yardstick of the machine's speed at the moment: milliseconds of the frontend's ORB per
+    image, in one thread, on the first left images of a replica (median of 3 passes). The
+    machines here are shared; the same code has measured 5-6 ms and 10+ ms in different hours,
+    and every real-time factor scales with it."""
+    import statistics
+
+    import cv2
+
+    from eurocslam.dataset.asl import read_image
+    from eurocslam.frontend.config import FrontendConfig
+    from eurocslam.frontend.features import OrbExtractor
+
+    files = sorted((seq / "mav0" / "cam0" / "data").glob("*.png"))[:n_images]
+    images = [im for im in (read_image(f) for f in files) if im is not None]
+    if not images:
+        return float("nan")
+    orb = OrbExtractor(FrontendConfig(), images[0].shape[1], images[0].shape[0])
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        passes = []
+        for _ in range(3):
+            t = time.perf_counter()
+            for im in images:
+                orb.extract(im)
+            passes.append((time.perf_counter() - t) * 1e3 / len(images))
+    finally:
+        cv2.setNumThreads(threads)
+    return statistics.median(passes)
+
+
 def fmt(v: float | None, spec: str = ".3f") -> str:
     return "-" if v is None else format(v, spec)
 
@@ -198,14 +230,18 @@ def main() -> int:
     )
     rows = []
     results: dict[str, dict[str, object]] = {}
+    probes: list[float] = []
     for short in args.sequences:
         seq = make_replica(short, args.cache, duration, args.seed)
+        if not probes:
+            probes.append(machine_speed(seq))
         with tempfile.TemporaryDirectory(prefix="bench_slam_") as tmp:
             mcap = not args.no_mcap
             vio = run_one(seq, Path(tmp) / "vio", False, mcap, args.config)
             vo = None if args.no_vo else run_one(seq, Path(tmp) / "vo", True, mcap, args.config)
         results[short] = {"vio": vio, "vo": vo}
         rows.append((short, vio, vo))
+        probes.append(machine_speed(seq))
         print(
             f"  {short}: VIO {fmt(vio.get('ate_final'))} m"
             + (f", VO {fmt(vo.get('ate_final'))} m" if vo else ""),
@@ -251,6 +287,10 @@ def main() -> int:
         "RTF: data seconds per wall second (MCAP writing included); CPU/s: CPU seconds (all "
         "threads) per data second; RTF 1.5 on 2 idle cores needs CPU/s below 1.33."
     )
+    print(
+        "machine speed (ORB ms per image, one thread; before the first run and after each "
+        "sequence): " + " ".join(f"{p:.1f}" for p in probes)
+    )
     # per-stage timings of the stereo-inertial runs (medians over sequences)
     stages: dict[str, list[float]] = {}
     for _, vio, _ in rows:
@@ -262,6 +302,7 @@ def main() -> int:
             + ", ".join(f"{k} {sorted(v)[len(v) // 2]:.1f}" for k, v in stages.items())
         )
     if args.json:
+        results["machine_speed_orb_ms"] = probes  # type: ignore[assignment]
         args.json.write_text(json.dumps(results, indent=2, default=str))
     return 0
 
