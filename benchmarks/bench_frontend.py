@@ -38,18 +38,7 @@ from eurocslam.frontend.frontend import StereoFrontend
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_slam  # the replicas and the `eurocslam run` runner are shared
 
-# with stereo on demand (the default) orb_right and stereo_matching run at keyframes only and
-# stereo_tracked (the tracked keypoints' right columns) on the other frames
-STAGES = [
-    "decode",
-    "rectify",
-    "orb",
-    "orb_right",
-    "stereo_matching",
-    "stereo_tracked",
-    "tracking",
-    "pnp",
-]
+STAGES = ["decode", "rectify", "orb", "stereo_matching", "tracking", "pnp"]
 
 
 def timed(frames: Iterator[StereoFrame], sink: list[float]) -> Iterator[StereoFrame]:
@@ -84,7 +73,6 @@ def speed(seq_path: Path, max_frames: int, repeat: int) -> dict[str, float]:
     for k, v in per.items():
         if v:
             out[f"ms_{k}"] = statistics.median(v)
-            out[f"n_{k}"] = float(len(v))
     out["fps_sequential"] = n / wall_seq
     # threaded pipeline (decode + rectify + ORB of the next frames in worker threads), repeated:
     # the median of `repeat` runs (the machine is shared)
@@ -142,10 +130,10 @@ def main() -> int:
         sname = args.sequences[0]
         sp = speed(paths[sname], args.speed_frames, max(1, args.repeat))
         print(f"\n## Frontend speed ({sname} replica, {int(sp['frames'])} frames, no BA)\n")
-        print("| stage | ms per call (median, one thread) | calls |\n|---|---|---|")
+        print("| stage | ms / stereo frame (median, one thread) |\n|---|---|")
         for k in STAGES:
             if f"ms_{k}" in sp:
-                print(f"| {k} | {sp[f'ms_{k}']:.2f} | {int(sp[f'n_{k}'])} |")
+                print(f"| {k} | {sp[f'ms_{k}']:.2f} |")
         print(
             f"\nframes/s: sequential {sp['fps_sequential']:.1f}, "
             f"threaded pipeline {sp['fps_pipelined']:.1f} (median of {args.repeat}, "

@@ -13,7 +13,6 @@ from eurocslam.dataset import open_sequence
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.frontend import StereoFrontend
-from eurocslam.frontend.matching import measure_right_columns
 from eurocslam.frontend.types import TrackingState
 from eurocslam.geometry import inv_T, make_T, rotation_angle, so3_exp
 
@@ -73,55 +72,6 @@ def test_rectified_stereo_matches_on_real_images(v101_frames) -> None:
     assert off.size > 200
     assert np.median(np.abs(off)) < 1.0
     assert abs(np.median(off)) < 0.5  # no systematic row shift between the rectified images
-
-
-def test_right_columns_measured_on_demand_agree_with_stereo_matching(v101_frames) -> None:
-    """`measure_right_columns` (stereo on demand: block matching around a predicted column, no
-    right-image keypoints) finds the column that full stereo matching finds, from a prediction
-    up to 3 px off (tracking predicts from the keypoint and its landmark's disparity: off by
-    0.07-0.13 px median, 0.8-2.8 px at the 99th percentile on the replicas)."""
-    seq, frames = v101_frames
-    cfg = FrontendConfig()
-    fe = StereoFrontend(seq.rig, cfg)
-    rng = np.random.default_rng(0)
-    diffs = []
-    for fr in frames[::30]:
-        ff = fe.extract(fr)
-        ok = np.nonzero(ff.stereo.valid)[0]
-        uL, v, uR = ff.left.uv[ok, 0], ff.left.uv[ok, 1], ff.stereo.uR[ok]
-        pred = uR + rng.uniform(-3.0, 3.0, ok.size)
-        got = measure_right_columns(uL, v, pred, ff.left_img, ff.right_img, cfg, fe.rectified)
-        assert np.isfinite(got).mean() > 0.95
-        diffs.append(np.abs(got - uR)[np.isfinite(got)])
-    d = np.concatenate(diffs)
-    assert np.percentile(d, 95) < 0.05, np.percentile(d, [50, 95, 99])
-
-
-def test_stereo_on_demand_matches_keyframes_fully(v101_frames) -> None:
-    """With stereo on demand, keyframes (and the first frame) are fully stereo-matched and
-    their observations are those of full matching; between them the right image is not
-    extracted, tracking measures its keypoints' right columns, and the poses agree with full
-    matching on every frame (the drone stands still: < 2 mm, 0.1 degree)."""
-    seq, frames = v101_frames
-    lazy = StereoFrontend(seq.rig, FrontendConfig(stereo_on_demand=True))
-    full = StereoFrontend(seq.rig, FrontendConfig(stereo_on_demand=False))
-    n_kf = 0
-    for fr in frames[:40]:
-        a, b = lazy.process(fr), full.process(fr)
-        assert a.state == b.state
-        if a.is_keyframe:
-            n_kf += 1
-            assert "orb_right" in a.timings_ms and "stereo_matching" in a.timings_ms
-            assert a.n_stereo == int(full.complete(lazy._features(fr)).stereo.valid.sum())
-        else:
-            assert "orb_right" not in a.timings_ms and "stereo_tracked" in a.timings_ms
-            assert 0.5 * a.n_tracked < a.n_stereo <= a.n_features
-            assert np.isfinite(a.stereo_uv[:, 1]).mean() > 0.8
-        assert "orb_right" not in b.timings_ms
-        err = inv_T(b.T_world_body) @ a.T_world_body
-        assert np.linalg.norm(err[:3, 3]) < 0.002
-        assert np.degrees(rotation_angle(err[:3, :3])) < 0.1
-    assert 1 <= n_kf < 20
 
 
 def test_static_visual_odometry_stays_put(v101_micro: Path) -> None:

@@ -67,17 +67,6 @@ class PipelineState(str, Enum):
 
 
 STATE_CODE = {PipelineState.INIT: 0, PipelineState.TRACKING: 1, PipelineState.LOST: 2}
-# (summary stage, frontend timing key): extraction (worker threads: decode, rectify, ORB of the
-# left image, and of the right one unless stereo is on demand), then the tracking thread
-FRONTEND_STAGES = (
-    ("decode", "decode"),
-    ("rectify", "rectify"),
-    ("orb", "orb"),
-    ("orb_right", "orb_right"),  # stereo on demand: keyframes only, on the tracking thread
-    ("stereo_matching", "stereo_matching"),
-    ("stereo_tracked", "stereo_tracked"),  # right columns of tracked keypoints, on demand
-    ("tracking", "track_total"),
-)
 
 
 @dataclass(frozen=True)
@@ -383,17 +372,17 @@ class SlamPipeline:
         """Process one frame (features already extracted)."""
         s = self.summary
         s.frames += 1
+        for k in ("decode", "rectify", "orb", "stereo_matching"):
+            if k in ff.timings_ms:
+                s.add_time(k, ff.timings_ms[k])
         if self.state == PipelineState.INIT:
             out = self._step_init(frame, ff)
         else:
             out = self._step_tracking(frame, ff)
-        # the frontend's result carries the extraction's timings and those of its own stages
-        timings = out.frontend.timings_ms if out.frontend is not None else ff.timings_ms
-        for stage, key in FRONTEND_STAGES:
-            if key in timings:
-                s.add_time(stage, timings[key])
         if out.frontend is not None:
             s.landmarks_reused += out.frontend.n_reused
+            if "track_total" in out.frontend.timings_ms:
+                s.add_time("tracking", out.frontend.timings_ms["track_total"])
         s.state_frames[out.state.value] = s.state_frames.get(out.state.value, 0) + 1
         if out.T_world_body is not None:
             s.frames_with_pose += 1

@@ -90,10 +90,6 @@ class FrontendConfig:
     # stereo matching is numpy (holds the GIL): in the tracking thread by default, so the
     # workers run only GIL-free OpenCV work (decode, remap, ORB)
     stereo_matching_in_workers: bool = False
-    # stereo on demand: the right image's ORB and the stereo matching of every keypoint only
-    # at keyframes (new landmarks need them); in between, tracking measures the right column
-    # of the keypoints it matched by block matching around their landmarks' predicted column
-    stereo_on_demand: bool = True
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None, where: str = "frontend") -> FrontendConfig:

@@ -1,29 +1,20 @@
 """`StereoFrontend`: rectified stereo ORB features tracked against a local map of landmarks.
 
-Per frame: image check (missing / blank / saturated -> NO_IMAGE), rectification, grid ORB,
-then tracking: project the local map with the predicted pose (the caller's, e.g. from the IMU,
-else a constant-velocity model), match by descriptor in a window, optimise the pose on stereo
-reprojection errors with outlier rejection (two passes, the second at the refined pose),
-recover with `cv2.solvePnPRansac` when the prediction fails, create landmarks at keyframes and
-cull unreliable ones.
+Per frame: image check (missing / blank / saturated -> NO_IMAGE), rectification, grid ORB on
+both images, stereo matching, then tracking: project the local map with the predicted pose
+(the caller's, e.g. from the IMU, else a constant-velocity model), match by descriptor in a
+window, optimise the pose on stereo reprojection errors with outlier rejection (two passes,
+the second at the refined pose), recover with `cv2.solvePnPRansac` when the prediction fails,
+create landmarks at keyframes and cull unreliable ones.
 
-Stereo: a keyframe needs every left keypoint matched along its row in the right image (ORB on
-the right image, descriptor matching, sub-pixel block matching: `match_stereo`) to create
-landmarks. Tracking needs only the right columns of the keypoints it matched, and those it
-measures directly, by the same block matching around the column their landmark predicts. With
-`stereo_on_demand` (default) a frame is therefore fully matched only when it becomes a
-keyframe (or starts a map): about one frame in five on EuRoC's motion, which saves the right
-image's ORB and the stereo matching everywhere else.
-
-Two stages so both cores work: extraction (decode is the reader's, then rectify, ORB) is
-thread-safe and pure; `track(features, prediction)` is sequential. `process(frame,
-prediction)` is both; `stream(frames)` runs extraction ahead in worker threads (OpenCV releases
-the GIL). `extract(frame)` returns a fully matched frame.
+Two stages so both cores work: `extract(frame)` (decode is the reader's, then rectify, ORB,
+stereo matching) is thread-safe and pure; `track(features, prediction)` is sequential.
+`process(frame, prediction)` is both; `stream(frames)` runs extraction one frame ahead in a
+worker thread (OpenCV releases the GIL).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import threading
 import time
 from collections import deque
@@ -40,7 +31,7 @@ from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import U8, StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.features import Features, OrbExtractor
-from eurocslam.frontend.matching import StereoMatches, match_stereo, measure_right_columns
+from eurocslam.frontend.matching import StereoMatches, match_stereo
 from eurocslam.frontend.stereo import StereoRectifier, triangulate_rect
 from eurocslam.frontend.tracking import (
     LocalMap,
@@ -74,20 +65,27 @@ def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:
 
 
 @dataclass(frozen=True)
-class FrameFeatures:
-    """Output of the extraction stage for one stereo frame.
+class _Partial:
+    """Extraction before stereo matching (what the worker threads produce)."""
 
-    `stereo` (every left keypoint matched against the right image's ORB keypoints) is None
-    while it is not needed: with `stereo_on_demand` the workers skip the right image's ORB, and
-    `StereoFrontend.track` completes a frame (`complete`) only when it makes a keyframe."""
+    t_ns: int
+    problem: str | None
+    left: Features
+    right: Features
+    left_img: U8 | None  # rectified images
+    right_img: U8 | None
+    timings_ms: dict[str, float]
+
+
+@dataclass(frozen=True)
+class FrameFeatures:
+    """Output of the extraction stage for one stereo frame."""
 
     t_ns: int
     problem: str | None  # None: usable; else why the frame is NO_IMAGE
     left: Features
-    right: Features | None  # None: not extracted (stereo on demand)
-    stereo: StereoMatches | None  # None: not matched yet
-    left_img: U8 | None = None  # rectified images (None for a NO_IMAGE frame)
-    right_img: U8 | None = None
+    right: Features
+    stereo: StereoMatches
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -168,7 +166,7 @@ class StereoFrontend:
         return self._rectifier
 
     def process(self, frame: StereoFrame, T_world_body_pred: F64 | None = None) -> FrontendResult:
-        return self.track(self._features(frame), T_world_body_pred)
+        return self.track(self.extract(frame), T_world_body_pred)
 
     def stream(self, frames: Iterable[StereoFrame]) -> Iterator[tuple[StereoFrame, FrameFeatures]]:
         """Yield (frame, features) in order, with the next frames read, decoded and extracted
@@ -177,15 +175,14 @@ class StereoFrontend:
         it = iter(frames)
         if not self.config.prefetch:
             for fr in it:
-                yield fr, self._features(fr)
+                yield fr, self.extract(fr)
             return
         lock = threading.Lock()
         counter = [0]
 
         in_workers = self.config.stereo_matching_in_workers
-        on_demand = self.config.stereo_on_demand
 
-        def job() -> tuple[int, StereoFrame, FrameFeatures] | None:
+        def job() -> tuple[int, StereoFrame, FrameFeatures | _Partial] | None:
             with lock:  # the reader is not thread-safe: frames are taken one at a time
                 t0 = time.perf_counter()
                 try:
@@ -195,16 +192,16 @@ class StereoFrontend:
                 dec = (time.perf_counter() - t0) * 1e3
                 k = counter[0]
                 counter[0] += 1
-            part = self._extract_images(fr, right=not on_demand)
+            part = self._extract_images(fr)
             part.timings_ms["decode"] = dec
-            return k, fr, (self._match(part) if in_workers and not on_demand else part)
+            return k, fr, (self._match(part) if in_workers else part)
 
         n = max(1, self.config.prefetch_workers)
         with ThreadPoolExecutor(max_workers=n, thread_name_prefix="frontend-extract") as pool:
             # two frames more than workers in flight: a worker that finishes early starts the
             # next frame at once instead of waiting for the tracker to take its result
             pending: deque[Future] = deque(pool.submit(job) for _ in range(n + 2))
-            ready: dict[int, tuple[StereoFrame, FrameFeatures]] = {}
+            ready: dict[int, tuple[StereoFrame, FrameFeatures | _Partial]] = {}
             want = 0
             done = False
             while pending:
@@ -217,7 +214,7 @@ class StereoFrontend:
                         pending.append(pool.submit(job))
                 while want in ready:
                     fr, ff = ready.pop(want)
-                    yield fr, (ff if on_demand or ff.stereo is not None else self._match(ff))
+                    yield fr, (ff if isinstance(ff, FrameFeatures) else self._match(ff))
                     want += 1
 
     def predict(self, t_ns: int) -> F64 | None:
@@ -275,20 +272,8 @@ class StereoFrontend:
         """Rectify, ORB on both images, stereo matching. Thread-safe."""
         return self._match(self._extract_images(frame))
 
-    def _features(self, frame: StereoFrame) -> FrameFeatures:
-        """Extraction as `track` takes it: complete, or (stereo on demand) the left image's ORB
-        only."""
-        if self.config.stereo_on_demand:
-            return self._extract_images(frame, right=False)
-        return self.extract(frame)
-
-    def complete(self, ff: FrameFeatures) -> FrameFeatures:
-        """`ff` with its stereo matching (and the right image's ORB) done. Thread-safe."""
-        return ff if ff.stereo is not None else self._match(ff)
-
-    def _extract_images(self, frame: StereoFrame, right: bool = True) -> FrameFeatures:
-        """The OpenCV part of extraction (releases the GIL): rectification and ORB (of the
-        left image only when `right` is False)."""
+    def _extract_images(self, frame: StereoFrame) -> _Partial:
+        """The OpenCV part of extraction (releases the GIL): rectification and ORB."""
         c = self.config
         timings: dict[str, float] = {}
         problem = image_problem(frame.left, c) or image_problem(frame.right, c)
@@ -299,36 +284,29 @@ class StereoFrontend:
             problem = "size"
         if problem is not None:
             e = Features.empty()
-            return FrameFeatures(frame.t_ns, problem, e, e, None, timings_ms=timings)
+            return _Partial(frame.t_ns, problem, e, e, None, None, timings)
         t0 = time.perf_counter()
-        left_img = self._rectifier.rectify_left(frame.left)
-        right_img = self._rectifier.rectify_right(frame.right)
+        left = self._rectifier.rectify_left(frame.left)
+        right = self._rectifier.rectify_right(frame.right)
         t1 = time.perf_counter()
         ex = self._extractor()
-        fl = ex.extract(left_img)
-        fr = ex.extract(right_img) if right else None
+        fl = ex.extract(left)
+        fr = ex.extract(right)
         t2 = time.perf_counter()
         timings.update(rectify=(t1 - t0) * 1e3, orb=(t2 - t1) * 1e3)
-        return FrameFeatures(frame.t_ns, None, fl, fr, None, left_img, right_img, timings)
+        return _Partial(frame.t_ns, None, fl, fr, left, right, timings)
 
-    def _match(self, ff: FrameFeatures) -> FrameFeatures:
-        """Stereo matching (numpy, holds the GIL), after the right image's ORB if the
-        extraction left it out. The timings go into `ff.timings_ms`."""
-        if ff.problem is not None or ff.left_img is None or ff.right_img is None:
-            stereo = StereoMatches(*_no_stereo(len(ff.left)))
-            right = ff.right if ff.right is not None else Features.empty()
-            return dataclasses.replace(ff, right=right, stereo=stereo)
-        right = ff.right
-        if right is None:
-            t0 = time.perf_counter()
-            right = self._extractor().extract(ff.right_img)
-            ff.timings_ms["orb_right"] = (time.perf_counter() - t0) * 1e3
+    def _match(self, p: _Partial) -> FrameFeatures:
+        """The numpy part of extraction (holds the GIL): stereo matching."""
+        if p.problem is not None or p.left_img is None or p.right_img is None:
+            stereo = StereoMatches(*_no_stereo(len(p.left)))
+            return FrameFeatures(p.t_ns, p.problem, p.left, p.right, stereo, p.timings_ms)
         t0 = time.perf_counter()
         sm = match_stereo(
-            ff.left, right, ff.left_img, ff.right_img, self.scale, self.config, self.rectified
+            p.left, p.right, p.left_img, p.right_img, self.scale, self.config, self.rectified
         )
-        ff.timings_ms["stereo_matching"] = (time.perf_counter() - t0) * 1e3
-        return dataclasses.replace(ff, right=right, stereo=sm)
+        p.timings_ms["stereo_matching"] = (time.perf_counter() - t0) * 1e3
+        return FrameFeatures(p.t_ns, None, p.left, p.right, sm, p.timings_ms)
 
     # ---- stage 2: tracking (sequential) -----------------------------------------------------
     def track(self, ff: FrameFeatures, T_world_body_pred: F64 | None = None) -> FrontendResult:
@@ -342,22 +320,18 @@ class StereoFrontend:
         if ff.problem is not None:
             return self._result(ff, TrackingState.NO_IMAGE, None, timings, t0)
         if not self._initialized:
-            return self._initialize(self._complete(ff, timings), pred, timings, t0)
+            return self._initialize(ff, pred, timings, t0)
         if pred is None:  # initialised but never had a pose: cannot happen; be safe
             pred = self.last_T_world_body if self.last_T_world_body is not None else np.eye(4)
-        right = _RightColumns.of(ff)
         T_world_body, inlier_rows, inlier_kps = self._track_local_map(
-            ff, right, pred, T_world_body_pred is not None, timings
+            ff, pred, T_world_body_pred is not None, timings
         )
-        if right.ms:
-            timings["stereo_tracked"] = right.ms
         if T_world_body is None:
             self._lost_count += 1
             if self._lost_count >= self.config.reinit_after_lost_frames:
                 # re-create the map from stereo at the best available pose
-                ff = self._complete(ff, timings)
                 return self._initialize(ff, pred, timings, t0, reinit=True)
-            return self._result(ff, TrackingState.LOST, None, timings, t0, right=right)
+            return self._result(ff, TrackingState.LOST, None, timings, t0)
         self._lost_count = 0
         self._motion.update(ff.t_ns, T_world_body)
         self.last_T_world_body = T_world_body
@@ -372,10 +346,6 @@ class StereoFrontend:
         tracked[inlier_kps] = True
         n_tracked = int(inlier_rows.size)
         if is_kf:
-            # new landmarks need every stereo match; the tracked ones keep them too, so a
-            # keyframe's observations are those of a fully matched frame
-            ff = self._complete(ff, timings)
-            right = _RightColumns.of(ff)
             used = tracked.copy()
             old_ids, old_kps = self._reuse(ff, T_world_body, used)
             used[old_kps] = True
@@ -394,44 +364,19 @@ class StereoFrontend:
             timings,
             t0,
             ids=ids,
-            uv=_stereo_uv(ff, right.uR, obs_kps),
+            uv=self._stereo_uv(ff, obs_kps),
             is_kf=is_kf,
             tracked=tracked,
             n_tracked=n_tracked,
             obs_kps=obs_kps,
             n_reused=int(old_kps.size) if is_kf else 0,
-            right=right,
         )
 
     # ---- internals --------------------------------------------------------------------------
-    def _complete(self, ff: FrameFeatures, timings: dict[str, float]) -> FrameFeatures:
-        """`complete(ff)`, its timings added to this frame's."""
-        if ff.stereo is not None:
-            return ff
-        t0 = time.perf_counter()
-        ff = self._match(ff)
-        for k in ("orb_right", "stereo_matching"):
-            if k in ff.timings_ms:
-                timings[k] = ff.timings_ms[k]
-        timings["complete"] = (time.perf_counter() - t0) * 1e3
-        return ff
-
-    def _measure_right(
-        self, ff: FrameFeatures, right: _RightColumns, kps: NDArray[np.intp], uR_pred: F64
-    ) -> None:
-        """Right columns of tracked keypoints `kps` not measured yet, searched around
-        `uR_pred` (stereo on demand)."""
-        new = ~right.measured[kps]
-        if not new.any() or ff.left_img is None or ff.right_img is None:
-            return
-        t0 = time.perf_counter()
-        k = kps[new]
-        uv = ff.left.uv[k]
-        right.uR[k] = measure_right_columns(
-            uv[:, 0], uv[:, 1], uR_pred[new], ff.left_img, ff.right_img, self.config, self.rectified
+    def _stereo_uv(self, ff: FrameFeatures, kps: NDArray[np.intp]) -> F64:
+        return np.column_stack([ff.left.uv[kps, 0], ff.stereo.uR[kps], ff.left.uv[kps, 1]]).reshape(
+            -1, 3
         )
-        right.measured[k] = True
-        right.ms += (time.perf_counter() - t0) * 1e3
 
     def _initialize(
         self,
@@ -447,7 +392,6 @@ class StereoFrontend:
             T_world_body = self._T_init
         else:
             T_world_body = np.eye(4)
-        assert ff.stereo is not None  # track() completes the frame first
         n_stereo = int(ff.stereo.valid.sum())
         if n_stereo < self.config.min_tracked:
             # too few stereo points to start a map: keep waiting (pose unknown when lost)
@@ -473,7 +417,7 @@ class StereoFrontend:
             timings,
             t0,
             ids=ids,
-            uv=_stereo_uv(ff, ff.stereo.uR, kps),
+            uv=self._stereo_uv(ff, kps),
             is_kf=True,
             tracked=tracked,
             n_tracked=0,
@@ -490,7 +434,6 @@ class StereoFrontend:
         """New landmarks from stereo keypoints not already tracked, closest first."""
         if limit == -1:
             limit = self.config.max_new_landmarks_per_keyframe
-        assert ff.stereo is not None  # keyframes are complete
         cand = np.nonzero(ff.stereo.valid & ~used)[0]
         if cand.size == 0:
             return np.zeros(0, np.int64), cand
@@ -510,7 +453,6 @@ class StereoFrontend:
         self, ff: FrameFeatures, kps: NDArray[np.intp], T_world_body: F64
     ) -> F64:
         """World positions (N, 3) of stereo keypoints `kps` seen from `T_world_body`."""
-        assert ff.stereo is not None
         uv = ff.left.uv[kps]
         p_rect = triangulate_rect(uv[:, 0], ff.stereo.uR[kps], uv[:, 1], self.rectified)
         T_world_rect0 = T_world_body @ self._T_body_rect0
@@ -519,7 +461,6 @@ class StereoFrontend:
     def _match_and_optimize(
         self,
         ff: FrameFeatures,
-        right: _RightColumns,
         tree: cKDTree,
         T_rc: F64,
         radius: float,
@@ -535,7 +476,7 @@ class StereoFrontend:
             m.desc,
             m.octave,
             ff.left,
-            right.uR,
+            ff.stereo.uR,
             tree,
             self.scale,
             radius,
@@ -544,24 +485,14 @@ class StereoFrontend:
         )
         if rows.size < c.min_tracked:
             return T_rc, rows[:0], kps[:0], int(rows.size)
-        if ff.stereo is None:
-            # the landmark's predicted disparity, from the keypoint (a pose error moves the
-            # whole projection, the disparity hardly)
-            disparity = proj.uv[rows, 0] - proj.uR[rows]
-            self._measure_right(ff, right, kps, ff.left.uv[kps, 0] - disparity)
-        meas = _stereo_uv(ff, right.uR, kps)
+        meas = self._stereo_uv(ff, kps)
         T_opt, inl, _ = optimize_pose(
             T_rc, m.xyz[rows], meas, sigma_all[kps], g, c.pose_chi2_stereo, c.pose_chi2_mono
         )
         return T_opt, rows[inl], kps[inl], int(rows.size)
 
     def _track_local_map(
-        self,
-        ff: FrameFeatures,
-        right: _RightColumns,
-        pred: F64,
-        have_pred: bool,
-        timings: dict[str, float],
+        self, ff: FrameFeatures, pred: F64, have_pred: bool, timings: dict[str, float]
     ) -> tuple[F64 | None, NDArray[np.intp], NDArray[np.intp]]:
         c, g, m = self.config, self.rectified, self.map
         empty = np.zeros(0, np.intp)
@@ -577,12 +508,10 @@ class StereoFrontend:
         pnp_ms = 0.0
         # pass 1: at the prediction (wider window without an external prediction)
         r1 = c.track_radius_px * (1.0 if have_pred else 1.5)
-        T_rc, rows, kps, n_match = self._match_and_optimize(
-            ff, right, tree, T_pred_rc, r1, sigma_all
-        )
+        T_rc, rows, kps, n_match = self._match_and_optimize(ff, tree, T_pred_rc, r1, sigma_all)
         if rows.size < c.min_tracked:
             T_rc, rows, kps, n_match = self._match_and_optimize(
-                ff, right, tree, T_pred_rc, 3.0 * c.track_radius_px, sigma_all
+                ff, tree, T_pred_rc, 3.0 * c.track_radius_px, sigma_all
             )
         if rows.size < max(c.min_tracked, n_match // 2):
             # verify / recover: descriptor matching against the whole local map + PnP RANSAC
@@ -591,21 +520,21 @@ class StereoFrontend:
             pnp_ms += (time.perf_counter() - tp) * 1e3
             if T_pnp is not None:
                 T2, rows2, kps2, _ = self._match_and_optimize(
-                    ff, right, tree, T_pnp, c.track_radius_px, sigma_all
+                    ff, tree, T_pnp, c.track_radius_px, sigma_all
                 )
                 if rows2.size > rows.size:
                     T_rc, rows, kps = T2, rows2, kps2
         if rows.size < c.min_tracked:
-            timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms - right.ms
+            timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
             timings["pnp"] = pnp_ms
             return None, empty, empty
         # pass 2: refined pose, tight window, every visible landmark
         T2, rows2, kps2, _ = self._match_and_optimize(
-            ff, right, tree, T_rc, 0.5 * c.track_radius_px, sigma_all
+            ff, tree, T_rc, 0.5 * c.track_radius_px, sigma_all
         )
         if rows2.size >= rows.size * 0.8 and rows2.size >= c.min_tracked:
             T_rc, rows, kps = T2, rows2, kps2
-        timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms - right.ms
+        timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
         timings["pnp"] = pnp_ms
         return body_T_from_rect(T_rc, self._T_body_rect0), rows, kps
 
@@ -650,7 +579,6 @@ class StereoFrontend:
         none = np.zeros(0, np.int64), np.zeros(0, np.intp)
         if not c.reuse_map or len(a) == 0:
             return none
-        assert ff.stereo is not None  # keyframes are complete
         free = np.nonzero(ff.stereo.valid & ~used)[0]
         if free.size == 0:
             return none
@@ -737,14 +665,11 @@ class StereoFrontend:
         n_tracked: int = 0,
         obs_kps: NDArray[np.intp] | None = None,
         n_reused: int = 0,
-        right: _RightColumns | None = None,
     ) -> FrontendResult:
         t_draw = time.perf_counter()
         draw = self._rectifier.rect0_to_raw(ff.left.uv) if len(ff.left) else np.zeros((0, 2))
         timings["draw"] = (time.perf_counter() - t_draw) * 1e3
-        # the frontend's own time on the tracking thread, stereo on demand not included
-        on_demand = timings.get("complete", 0.0) + timings.get("stereo_tracked", 0.0)
-        timings["track_total"] = (time.perf_counter() - t0) * 1e3 - on_demand
+        timings["track_total"] = (time.perf_counter() - t0) * 1e3
         return FrontendResult(
             t_ns=ff.t_ns,
             state=state,
@@ -753,7 +678,7 @@ class StereoFrontend:
             T_world_body=None if T_world_body is None else T_world_body.copy(),
             is_keyframe=is_kf,
             n_features=len(ff.left),
-            n_stereo=_n_stereo(ff, right),
+            n_stereo=int(ff.stereo.valid.sum()),
             n_tracked=n_tracked,
             n_reused=n_reused,
             draw_uv=draw,
@@ -765,36 +690,6 @@ class StereoFrontend:
                 else self.scale[np.clip(ff.left.octave[obs_kps], 0, self.scale.size - 1)]
             ),
         )
-
-
-@dataclass
-class _RightColumns:
-    """The right-image column (rectified) of each left keypoint of the frame being tracked,
-    as far as known: from the frame's stereo matching when it has one, else measured on demand
-    for the keypoints tracking matched (`StereoFrontend._measure_right`). NaN: no match."""
-
-    uR: F64  # (N,)
-    measured: NDArray[np.bool_]  # (N,) uR is final (matched, or searched without a match)
-    ms: float = 0.0  # time spent measuring on demand
-
-    @staticmethod
-    def of(ff: FrameFeatures) -> _RightColumns:
-        n = len(ff.left)
-        if ff.stereo is not None:
-            return _RightColumns(ff.stereo.uR, np.ones(n, dtype=bool))
-        return _RightColumns(np.full(n, np.nan), np.zeros(n, dtype=bool))
-
-
-def _stereo_uv(ff: FrameFeatures, uR: F64, kps: NDArray[np.intp]) -> F64:
-    """Stereo measurements (uL, uR, v) of keypoints `kps` (uR NaN: mono)."""
-    return np.column_stack([ff.left.uv[kps, 0], uR[kps], ff.left.uv[kps, 1]]).reshape(-1, 3)
-
-
-def _n_stereo(ff: FrameFeatures, right: _RightColumns | None) -> int:
-    """Stereo-matched keypoints: all of a matched frame's, else those measured on demand."""
-    if ff.stereo is not None:
-        return int(ff.stereo.valid.sum())
-    return 0 if right is None else int(np.isfinite(right.uR).sum())
 
 
 def _no_stereo(n: int) -> tuple[F64, F64, NDArray[np.intp]]:

@@ -140,53 +140,6 @@ def _refine_subpixel(
     return out, cost_best
 
 
-def _photometric_inliers(cost: F64, good: NDArray[np.bool_], half_window: int) -> NDArray[np.bool_]:
-    """`good` without the photometric outliers: a cost far above the typical one (ORB-SLAM: SAD
-    > 1.5 x 1.4 x median; squared here because the cost is a sum of squares)."""
-    if not good.any():
-        return good
-    thr = (1.5 * 1.4) ** 2 * float(np.median(cost[good]))
-    # floor: a 2-grey-level RMS difference per pixel is never an outlier (clean images otherwise
-    # give a median near 0 and reject everything)
-    floor = 4.0 * (2 * half_window + 1) ** 2
-    return good & (cost <= max(thr, floor))
-
-
-def _disparity_ok(uL: F64, uR: F64, config: FrontendConfig, geom: RectifiedStereo) -> NDArray:
-    d = uL - uR
-    d_min = geom.fx * geom.baseline / config.max_depth_m
-    d_max = geom.fx * geom.baseline / config.min_depth_m
-    with np.errstate(invalid="ignore"):
-        return (d >= d_min) & (d <= d_max)
-
-
-def measure_right_columns(
-    uL: F64,
-    vL: F64,
-    uR_pred: F64,
-    img_l: U8,
-    img_r: U8,
-    config: FrontendConfig,
-    geom: RectifiedStereo,
-) -> F64:
-    """Right-image columns of left keypoints at (uL, vL) whose right column is predicted
-    (`uR_pred`, e.g. from a tracked landmark's depth): the sub-pixel block matching of
-    `match_stereo` along the row within `subpixel_search_px` of the prediction, with the same
-    photometric and disparity checks. NaN where no match. No right-image keypoints needed."""
-    uR, cost = _refine_subpixel(
-        img_l,
-        img_r,
-        uL,
-        vL,
-        uR_pred,
-        config.subpixel_half_window,
-        config.subpixel_search_px,
-    )
-    good = _photometric_inliers(cost, np.isfinite(uR), config.subpixel_half_window)
-    good &= _disparity_ok(uL, uR, config, geom)
-    return np.where(good, uR, np.nan)
-
-
 def match_stereo(
     left: Features,
     right: Features,
@@ -239,9 +192,20 @@ def match_stereo(
         config.subpixel_half_window,
         config.subpixel_search_px,
     )
-    good = _photometric_inliers(cost, np.isfinite(uR_ref), config.subpixel_half_window)
-    good &= _disparity_ok(left.uv[cand, 0], uR_ref, config, geom)
+    good = np.isfinite(uR_ref)
+    if good.any():
+        # photometric outliers: cost far above the typical one (ORB-SLAM: SAD > 1.5 x 1.4 x
+        # median; squared here because the cost is a sum of squares)
+        thr = (1.5 * 1.4) ** 2 * float(np.median(cost[good]))
+        # floor: a 2-grey-level RMS difference per pixel is never an outlier (clean images
+        # otherwise give a median near 0 and reject everything)
+        floor = 4.0 * (2 * config.subpixel_half_window + 1) ** 2
+        good &= cost <= max(thr, floor)
     d = left.uv[cand, 0] - uR_ref
+    d_min = geom.fx * geom.baseline / config.max_depth_m
+    d_max = geom.fx * geom.baseline / config.min_depth_m
+    with np.errstate(invalid="ignore"):
+        good &= (d >= d_min) & (d <= d_max)
     cand, r_c, uR_ref, d = cand[good], r_c[good], uR_ref[good], d[good]
     uR_out[cand] = uR_ref
     depth[cand] = geom.fx * geom.baseline / d
