@@ -7,9 +7,10 @@
    bench_slam.py.
 2. Speed (frontend alone) on the first replica: milliseconds per stereo frame for each stage
    (PNG decode, rectification, ORB, stereo matching, tracking, PnP) measured sequentially in one
-   thread, then frames/s wall clock for the sequential loop and for the threaded pipeline
-   (decode + rectify + ORB of the next frames in worker threads while the current one is
-   tracked); the local BA's milliseconds per keyframe come from the visual-odometry runs.
+   thread, then frames/s wall clock for the sequential loop and for the pipelined one (the next
+   frames decoded by a reader thread and rectified, ORB-extracted and stereo-matched by the
+   worker processes of `frontend/workers.py` while the current one is tracked); the local BA's
+   milliseconds per keyframe come from the visual-odometry runs.
 3. Accuracy: visual odometry exactly as `eurocslam run SEQUENCE --no-imu` (frontend + GTSAM
    sliding-window bundle adjustment: `GenericStereoFactor3D` under a Huber loss over the last
    `backend.lag_s` seconds of keyframes), one subprocess per replica: translation ATE RMSE
@@ -74,7 +75,7 @@ def speed(seq_path: Path, max_frames: int, repeat: int) -> dict[str, float]:
         if v:
             out[f"ms_{k}"] = statistics.median(v)
     out["fps_sequential"] = n / wall_seq
-    # threaded pipeline (decode + rectify + ORB of the next frames in worker threads), repeated:
+    # pipelined (the next frames extracted in worker processes), repeated:
     # the median of `repeat` runs (the machine is shared)
     fps = []
     for _ in range(repeat):
@@ -113,7 +114,7 @@ def main() -> int:
     )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--speed-frames", type=int, default=300)
-    ap.add_argument("--repeat", type=int, default=3, help="threaded speed runs (median)")
+    ap.add_argument("--repeat", type=int, default=3, help="pipelined speed runs (median)")
     ap.add_argument("--skip-speed", action="store_true")
     ap.add_argument("--skip-vo", action="store_true")
     args = ap.parse_args()
@@ -136,7 +137,7 @@ def main() -> int:
                 print(f"| {k} | {sp[f'ms_{k}']:.2f} |")
         print(
             f"\nframes/s: sequential {sp['fps_sequential']:.1f}, "
-            f"threaded pipeline {sp['fps_pipelined']:.1f} (median of {args.repeat}, "
+            f"pipelined {sp['fps_pipelined']:.1f} (median of {args.repeat}, "
             f"{sp['fps_pipelined_min']:.1f}-{sp['fps_pipelined_max']:.1f}; target 40)"
         )
     if args.skip_vo:

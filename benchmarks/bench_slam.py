@@ -136,6 +136,8 @@ def run_one(
         return res
     summary = json.loads((out / "summary.json").read_text())
     res["summary"] = summary
+    # the run's own peak plus its extraction workers' (separate processes)
+    res["rss_mb"] += sum(m or 0.0 for m in summary.get("worker_peak_rss_mb", []))
     res["ate_final"] = ate(seq, out / "trajectory_final.tum")
     res["ate_online"] = ate(seq, out / "trajectory_online.tum")
     return res
@@ -285,7 +287,8 @@ def main() -> int:
     )
     print(
         "RTF: data seconds per wall second (MCAP writing included); CPU/s: CPU seconds (all "
-        "threads) per data second; RTF 1.5 on 2 idle cores needs CPU/s below 1.33."
+        "threads and worker processes) per data second; RTF 1.5 on 2 idle cores needs CPU/s "
+        "below 1.33. RSS: peak memory of the run plus its extraction workers."
     )
     print(
         "machine speed (ORB ms per image, one thread; before the first run and after each "

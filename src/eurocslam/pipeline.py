@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Protocol
@@ -106,6 +106,25 @@ class _Segment:
     init_mode: str = ""
 
 
+def _cpu_seconds() -> float:
+    """CPU time of this process and of its finished children (the frontend's extraction
+    workers, once the stream has ended)."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not on Windows
+        return time.process_time()
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + ru.ru_utime + ru.ru_stime
+
+
+def _peak_rss_mb() -> float:
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not on Windows
+        return math.nan
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def _finite(x: float) -> float | None:
     """Rounded for JSON; NaN (not measured) as null."""
     return None if math.isnan(x) else round(x, 3)
@@ -127,7 +146,9 @@ class RunSummary:
     state_frames: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
     wall_s: float = 0.0
-    cpu_s: float = 0.0  # CPU time of the whole process (every thread) during the run
+    cpu_s: float = 0.0  # CPU time of the process (every thread) and its workers
+    peak_rss_mb: float = math.nan  # this process's peak resident memory
+    worker_peak_rss_mb: list[float] = field(default_factory=list)  # extraction workers'
     duration_s: float = 0.0
 
     def add_time(self, stage: str, ms: float) -> None:
@@ -182,6 +203,8 @@ class RunSummary:
             "duration_s": round(self.duration_s, 3),
             "wall_s": round(self.wall_s, 3),
             "cpu_s": round(self.cpu_s, 3),
+            "peak_rss_mb": _finite(self.peak_rss_mb),
+            "worker_peak_rss_mb": [_finite(m) for m in self.worker_peak_rss_mb],
             "realtime_factor": round(self.realtime_factor, 3),
             "timings": {
                 s: {
@@ -204,6 +227,14 @@ class RunSummary:
             + ", ".join(f"{k} {v}" for k, v in sorted(self.state_frames.items())),
             f"{self.duration_s:.1f} s of data in {self.wall_s:.1f} s wall "
             f"(real-time factor {self.realtime_factor:.2f}), {self.cpu_s:.1f} s CPU",
+            f"peak memory {self.peak_rss_mb:.0f} MB"
+            + (
+                f" + {len(self.worker_peak_rss_mb)} extraction workers "
+                + " + ".join(f"{m:.0f}" for m in self.worker_peak_rss_mb)
+                + " MB"
+                if self.worker_peak_rss_mb
+                else ""
+            ),
         ]
         for c in self.imu_checks:
             if math.isnan(c.ratio):
@@ -339,12 +370,14 @@ class SlamPipeline:
         on_progress: object | None = None,
     ) -> RunResult:
         wall0 = time.perf_counter()
-        cpu0 = time.process_time()
+        cpu0 = _cpu_seconds()
         frames = self.source.frames(
             include_incomplete=True, t_start_ns=t_start_ns, t_end_ns=t_end_ns
         )
         t_first = t_last = None
-        for frame, ff in self._stream(frames):
+        # extraction is stateless: the first frontend's stream serves every segment
+        extractor = self.frontend
+        for frame, ff in extractor.stream(frames):
             if t_first is None:
                 t_first = frame.t_ns
             t_last = frame.t_ns
@@ -357,16 +390,14 @@ class SlamPipeline:
                 on_progress(out)
         self._finish_segment()
         self.summary.wall_s = time.perf_counter() - wall0
-        self.summary.cpu_s = time.process_time() - cpu0
+        self.summary.cpu_s = _cpu_seconds() - cpu0
+        self.summary.peak_rss_mb = _peak_rss_mb()
+        self.summary.worker_peak_rss_mb = list(extractor.worker_peak_rss_mb)
         if t_first is not None and t_last is not None:
             self.summary.duration_s = (t_last - t_first) * 1e-9 + 1.0 / max(
                 self.source.rig.cam0.rate_hz, 1e-9
             )
         return self.result()
-
-    def _stream(self, frames: Iterable[StereoFrame]) -> Iterator[tuple[StereoFrame, FrameFeatures]]:
-        # extraction is stateless: the first frontend's prefetching stream serves every segment
-        return self.frontend.stream(frames)
 
     def step(self, frame: StereoFrame, ff: FrameFeatures) -> FrameOutput:
         """Process one frame (features already extracted)."""

@@ -85,11 +85,10 @@ class FrontendConfig:
     reinit_after_lost_frames: int = 2  # consecutive LOST frames before re-creating the map
 
     # ---- execution -------------------------------------------------------------------------
-    prefetch: bool = True  # decode+rectify+ORB of frame k+1 in a thread while k is tracked
-    prefetch_workers: int = 2  # extraction threads (frames k+1, k+2 in flight)
-    # stereo matching is numpy (holds the GIL): in the tracking thread by default, so the
-    # workers run only GIL-free OpenCV work (decode, remap, ORB)
-    stereo_matching_in_workers: bool = False
+    # extraction of the next frames (rectify, ORB, stereo matching) in worker processes while
+    # the current one is tracked, decoding in a reader thread (frontend/workers.py)
+    prefetch: bool = True
+    prefetch_workers: int = 2  # worker processes
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None, where: str = "frontend") -> FrontendConfig:

@@ -17,9 +17,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
 from collections.abc import Iterable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -155,6 +153,7 @@ class StereoFrontend:
         self._last_kf_t_ns: int | None = None
         self._ref_kf_tracked = 0
         self.last_T_world_body: F64 | None = None
+        self.worker_peak_rss_mb: list[float] = []  # of the last stream's extraction workers
 
     # ---- public interface ------------------------------------------------------------------
     @property
@@ -169,53 +168,21 @@ class StereoFrontend:
         return self.track(self.extract(frame), T_world_body_pred)
 
     def stream(self, frames: Iterable[StereoFrame]) -> Iterator[tuple[StereoFrame, FrameFeatures]]:
-        """Yield (frame, features) in order, with the next frames read, decoded and extracted
-        by `prefetch_workers` threads while the caller tracks the current one (OpenCV releases
-        the GIL). `prefetch=False` runs everything inline."""
-        it = iter(frames)
+        """Yield (frame, features) in order, with the next frames read and decoded by a reader
+        thread and extracted (rectification, ORB, stereo matching) by `prefetch_workers` worker
+        processes while the caller tracks the current one (`frontend.workers`).
+        `prefetch=False` runs everything inline."""
         if not self.config.prefetch:
-            for fr in it:
+            for fr in frames:
                 yield fr, self.extract(fr)
             return
-        lock = threading.Lock()
-        counter = [0]
+        from eurocslam.frontend.workers import ExtractionWorkers
 
-        in_workers = self.config.stereo_matching_in_workers
-
-        def job() -> tuple[int, StereoFrame, FrameFeatures | _Partial] | None:
-            with lock:  # the reader is not thread-safe: frames are taken one at a time
-                t0 = time.perf_counter()
-                try:
-                    fr = next(it)
-                except StopIteration:
-                    return None
-                dec = (time.perf_counter() - t0) * 1e3
-                k = counter[0]
-                counter[0] += 1
-            part = self._extract_images(fr)
-            part.timings_ms["decode"] = dec
-            return k, fr, (self._match(part) if in_workers else part)
-
-        n = max(1, self.config.prefetch_workers)
-        with ThreadPoolExecutor(max_workers=n, thread_name_prefix="frontend-extract") as pool:
-            # two frames more than workers in flight: a worker that finishes early starts the
-            # next frame at once instead of waiting for the tracker to take its result
-            pending: deque[Future] = deque(pool.submit(job) for _ in range(n + 2))
-            ready: dict[int, tuple[StereoFrame, FrameFeatures | _Partial]] = {}
-            want = 0
-            done = False
-            while pending:
-                item = pending.popleft().result()
-                if item is None:
-                    done = True
-                else:
-                    ready[item[0]] = (item[1], item[2])
-                    if not done:
-                        pending.append(pool.submit(job))
-                while want in ready:
-                    fr, ff = ready.pop(want)
-                    yield fr, (ff if isinstance(ff, FrameFeatures) else self._match(ff))
-                    want += 1
+        workers = ExtractionWorkers(self, self.config.prefetch_workers)
+        try:
+            yield from workers.stream(frames)
+        finally:
+            self.worker_peak_rss_mb = workers.peak_rss_mb
 
     def predict(self, t_ns: int) -> F64 | None:
         """Constant-velocity prediction of T_world_body at t_ns (None before the first pose)."""
@@ -272,16 +239,22 @@ class StereoFrontend:
         """Rectify, ORB on both images, stereo matching. Thread-safe."""
         return self._match(self._extract_images(frame))
 
-    def _extract_images(self, frame: StereoFrame) -> _Partial:
-        """The OpenCV part of extraction (releases the GIL): rectification and ORB."""
+    def image_problem(self, frame: StereoFrame) -> str | None:
+        """Why a frame's images cannot be tracked (`image_problem` of either, or 'size'), or
+        None."""
         c = self.config
-        timings: dict[str, float] = {}
         problem = image_problem(frame.left, c) or image_problem(frame.right, c)
         g = self.rectified
         if problem is None and (
             frame.left.shape != (g.height, g.width) or frame.right.shape != (g.height, g.width)
         ):
             problem = "size"
+        return problem
+
+    def _extract_images(self, frame: StereoFrame) -> _Partial:
+        """Rectification and ORB."""
+        timings: dict[str, float] = {}
+        problem = self.image_problem(frame)
         if problem is not None:
             e = Features.empty()
             return _Partial(frame.t_ns, problem, e, e, None, None, timings)
@@ -297,7 +270,7 @@ class StereoFrontend:
         return _Partial(frame.t_ns, None, fl, fr, left, right, timings)
 
     def _match(self, p: _Partial) -> FrameFeatures:
-        """The numpy part of extraction (holds the GIL): stereo matching."""
+        """Stereo matching."""
         if p.problem is not None or p.left_img is None or p.right_img is None:
             stereo = StereoMatches(*_no_stereo(len(p.left)))
             return FrameFeatures(p.t_ns, p.problem, p.left, p.right, stereo, p.timings_ms)

@@ -1,0 +1,318 @@
+"""Feature extraction in worker processes, beside tracking.
+
+`StereoFrontend.stream` runs the extraction of the next frames here while the caller tracks the
+current one. A reader thread takes frames from the source (decoding them: OpenCV releases the
+GIL), copies each frame's images into a slot of shared memory and hands the slot to a worker
+process, round-robin; the worker rectifies, extracts ORB on both images and matches them
+(`StereoFrontend.extract`) and sends the features back over a socket; the caller receives them
+in frame order. Frames that fail the image check (missing, blank, wrong size) skip the workers.
+
+A worker is `python -m eurocslam.frontend.workers FD` (subprocess, not multiprocessing: a
+spawned multiprocessing child imports the caller's main module, which re-runs a script that
+lacks an `if __name__ == "__main__"` guard).
+
+Processes rather than threads: the workers' numpy and Python (stereo matching, keypoint
+bucketing) run under their own interpreter lock, not the tracking thread's. With extraction in
+threads, stereo matching had to stay on the tracking thread (in the extraction threads it cost
+as much as it saved) and the threads' Python still competed with tracking for the lock. The
+features are the same either way.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import pickle
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from multiprocessing import shared_memory
+from multiprocessing.connection import Connection
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from eurocslam.dataset.calib import StereoRig
+from eurocslam.dataset.types import StereoFrame
+from eurocslam.errors import SlamError
+from eurocslam.frontend.config import FrontendConfig
+
+if TYPE_CHECKING:
+    from eurocslam.frontend.frontend import FrameFeatures, StereoFrontend
+
+SLOTS_PER_WORKER = 3  # frames in flight per worker: one being extracted, two waiting
+_POLL_S = 0.5  # how often a blocked wait checks that the other side is still there
+
+
+@dataclass(frozen=True)
+class _WorkerFailure:
+    """An exception inside a worker (a bug: the images were checked before), with its trace."""
+
+    trace: str
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One frame on its way to the caller: extracted by `worker` from `slot`, or, for a frame
+    that failed the image check, `local` (its features, made by the reader)."""
+
+    frame: StereoFrame
+    decode_ms: float
+    worker: int = -1
+    slot: int = -1
+    local: FrameFeatures | None = None
+
+
+@dataclass(frozen=True)
+class _End:
+    error: BaseException | None = None  # what the source raised, re-raised in the caller
+
+
+@dataclass(frozen=True)
+class _Done:
+    """A worker's last message, after the None that ends it."""
+
+    peak_rss_mb: float
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """The first message to a worker."""
+
+    rig: StereoRig
+    config: FrontendConfig
+    shm_name: str
+    n_slots: int
+    shape: tuple[int, int]
+
+
+def _worker_main(conn: Connection) -> None:
+    """A worker process: `_Setup`, then (slot, t_ns) in, `FrameFeatures` (or `_WorkerFailure`)
+    out; None in, `_Done` out ends it."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    from eurocslam.frontend.frontend import StereoFrontend
+
+    setup: _Setup = conn.recv()
+    n_slots, shape = setup.n_slots, setup.shape
+    fe = StereoFrontend(setup.rig, setup.config)
+    shm = shared_memory.SharedMemory(name=setup.shm_name)
+    _untrack(shm)
+    images = np.ndarray((n_slots, 2, *shape), np.uint8, buffer=shm.buf)
+    try:
+        while (task := conn.recv()) is not None:
+            slot, t_ns = task
+            try:
+                ff = fe.extract(StereoFrame(t_ns, images[slot, 0], images[slot, 1]))
+            except Exception:
+                conn.send(_WorkerFailure(traceback.format_exc()))
+                return
+            conn.send(ff)
+        conn.send(_Done(_peak_rss_mb()))
+    except (EOFError, OSError):
+        pass  # the parent went away
+    finally:
+        del images
+        shm.close()
+
+
+def _peak_rss_mb() -> float:
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not on Windows
+        return float("nan")
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def _untrack(shm: shared_memory.SharedMemory) -> None:
+    """The parent owns the shared memory and unlinks it: keep this process's resource tracker
+    from unlinking it (and warning of a leak) when the worker exits (Python < 3.13 registers
+    every attach)."""
+    try:
+        from multiprocessing import resource_tracker
+
+        resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+    except (ImportError, AttributeError, KeyError):
+        pass
+
+
+class ExtractionWorkers:
+    """`n_workers` worker processes extracting the frames of one stream for `frontend`."""
+
+    def __init__(self, frontend: StereoFrontend, n_workers: int) -> None:
+        self.frontend = frontend
+        g = frontend.rectified
+        self.shape = (g.height, g.width)
+        n_slots = SLOTS_PER_WORKER * max(1, int(n_workers))
+        self._shm: shared_memory.SharedMemory | None = shared_memory.SharedMemory(
+            create=True, size=n_slots * 2 * g.height * g.width
+        )
+        self._images = np.ndarray((n_slots, 2, *self.shape), np.uint8, buffer=self._shm.buf)
+        self._free: queue.Queue[int] = queue.Queue()
+        for s in range(n_slots):
+            self._free.put(s)
+        self._stop = threading.Event()
+        self.peak_rss_mb: list[float] = []  # per worker, known once the stream has ended
+        self._procs: list[subprocess.Popen[bytes]] = []
+        # one socket pair per worker: tasks go out from the reader thread, features come back
+        # to the caller (a socket buffers a frame's features, so a worker can work ahead)
+        self._conns: list[Connection] = []
+        setup = _Setup(frontend.rig, frontend.config, self._shm.name, n_slots, self.shape)
+        try:
+            for _ in range(max(1, int(n_workers))):
+                mine, theirs = socket.socketpair()
+                with theirs:
+                    fd = theirs.fileno()
+                    self._procs.append(
+                        subprocess.Popen(
+                            [sys.executable, "-m", "eurocslam.frontend.workers", str(fd)],
+                            pass_fds=(fd,),
+                            stdin=subprocess.DEVNULL,
+                        )
+                    )
+                conn = Connection(mine.detach())
+                self._conns.append(conn)
+                conn.send(setup)
+        except BaseException:
+            self.close()
+            raise
+
+    # ---- the caller's side -------------------------------------------------------------------
+    def stream(self, frames: Iterable[StereoFrame]) -> Iterator[tuple[StereoFrame, FrameFeatures]]:
+        """(frame, features) in frame order; the workers stop when the stream ends or closes."""
+        jobs: queue.Queue[_Job | _End] = queue.Queue(maxsize=2 * len(self._images))
+        reader = threading.Thread(
+            target=self._read, args=(iter(frames), jobs), name="eurocslam-reader", daemon=True
+        )
+        reader.start()
+        try:
+            while True:
+                job = jobs.get()
+                if isinstance(job, _End):
+                    if job.error is not None:
+                        raise job.error
+                    return
+                if job.local is not None:
+                    ff = job.local
+                else:
+                    ff = self._receive(job.worker)
+                    self._free.put(job.slot)
+                ff.timings_ms["decode"] = job.decode_ms
+                yield job.frame, ff
+        finally:
+            self._stop.set()
+            reader.join()
+            self.close()
+
+    def _receive(self, worker: int) -> FrameFeatures:
+        conn, proc = self._conns[worker], self._procs[worker]
+        try:
+            while not conn.poll(_POLL_S):
+                if proc.poll() is not None:
+                    raise EOFError
+            out = conn.recv()
+        except (EOFError, OSError, pickle.UnpicklingError):
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=_POLL_S)
+            raise SlamError(
+                f"feature extraction process {proc.pid} stopped (exit code {proc.returncode})"
+            ) from None
+        if isinstance(out, _WorkerFailure):
+            raise RuntimeError(f"feature extraction failed in process {proc.pid}:\n{out.trace}")
+        return out
+
+    # ---- the reader thread -------------------------------------------------------------------
+    def _read(self, frames: Iterator[StereoFrame], jobs: queue.Queue[_Job | _End]) -> None:
+        fe = self.frontend
+        k = 0
+        try:
+            while not self._stop.is_set():
+                t0 = time.perf_counter()
+                try:
+                    frame = next(frames)
+                except StopIteration:
+                    break
+                decode_ms = (time.perf_counter() - t0) * 1e3
+                if fe.image_problem(frame) is not None:
+                    job = _Job(frame, decode_ms, local=fe.extract(frame))
+                else:
+                    slot = self._take_slot()
+                    if slot is None:
+                        return
+                    self._images[slot, 0] = frame.left
+                    self._images[slot, 1] = frame.right
+                    worker = k % len(self._conns)
+                    k += 1
+                    self._conns[worker].send((slot, frame.t_ns))
+                    job = _Job(frame, decode_ms, worker=worker, slot=slot)
+                if not self._put(jobs, job):
+                    return
+            self._put(jobs, _End())
+        except BaseException as e:  # the source's errors (bad files, ...) reach the caller
+            self._put(jobs, _End(e))
+
+    def _take_slot(self) -> int | None:
+        """A free image slot, or None once the stream is stopping."""
+        while not self._stop.is_set():
+            try:
+                return self._free.get(timeout=_POLL_S)
+            except queue.Empty:
+                continue
+        return None
+
+    def _put(self, jobs: queue.Queue[_Job | _End], item: _Job | _End) -> bool:
+        """Queue `item` for the caller; False once the stream is stopping."""
+        while not self._stop.is_set():
+            try:
+                jobs.put(item, timeout=_POLL_S)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def close(self) -> None:
+        """Stop the workers and release the shared memory (idempotent)."""
+        for conn in self._conns:
+            with contextlib.suppress(OSError, ValueError):
+                conn.send(None)
+        for conn in self._conns:
+            self.peak_rss_mb.append(_last_word(conn))
+        for p in self._procs:
+            try:
+                p.wait(timeout=2)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        for conn in self._conns:
+            conn.close()
+        self._procs, self._conns = [], []
+        if self._shm is not None:
+            del self._images
+            self._shm.close()
+            self._shm.unlink()
+            self._shm = None
+
+
+def _last_word(conn: Connection) -> float:
+    """A worker's peak RSS from its `_Done`, skipping features nobody asked for (a stream
+    closed early); NaN if it does not answer."""
+    try:
+        while conn.poll(2.0):
+            msg = conn.recv()
+            if isinstance(msg, _Done):
+                return msg.peak_rss_mb
+    except (EOFError, OSError, pickle.UnpicklingError):
+        pass
+    return float("nan")
+
+
+if __name__ == "__main__":
+    # through the package's module, so what crosses the socket pickles by its importable name
+    from eurocslam.frontend.workers import _worker_main as main
+
+    main(Connection(int(sys.argv[1])))

@@ -1,0 +1,153 @@
+"""Extraction in worker processes (`frontend.workers`): the same features as inline, bad frames,
+errors from the source, early close, a worker that dies."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eurocslam.dataset.synth import Scene, SynthSpec
+from eurocslam.dataset.types import StereoFrame
+from eurocslam.errors import DatasetError, SlamError
+from eurocslam.frontend.config import FrontendConfig
+from eurocslam.frontend.frontend import FrameFeatures, StereoFrontend
+from eurocslam.frontend.workers import ExtractionWorkers
+
+
+@pytest.fixture(scope="module")
+def scene() -> Scene:
+    return Scene.build(SynthSpec.tiny(seed=2))
+
+
+@pytest.fixture(scope="module")
+def frames(scene: Scene) -> list[StereoFrame]:
+    out = []
+    for k in range(12):
+        left, _ = scene.image(k, 0)
+        right, _ = scene.image(k, 1)
+        out.append(StereoFrame(int(scene.cam_t_ns[k]), left, right))
+    return out
+
+
+def _shm_names() -> set[str]:
+    shm = Path("/dev/shm")
+    return {p.name for p in shm.iterdir()} if shm.is_dir() else set()
+
+
+def _same(a: FrameFeatures, b: FrameFeatures) -> None:
+    assert a.t_ns == b.t_ns and a.problem == b.problem
+    np.testing.assert_array_equal(a.left.uv, b.left.uv)
+    np.testing.assert_array_equal(a.left.desc, b.left.desc)
+    np.testing.assert_array_equal(a.right.desc, b.right.desc)
+    np.testing.assert_array_equal(a.stereo.uR, b.stereo.uR)
+
+
+def test_workers_extract_what_inline_extraction_does(scene: Scene, frames) -> None:
+    """Round-robin over two workers, in frame order; missing, blank and wrong-size images are
+    reported as inline; the decode time is the reader's."""
+    bad = list(frames)
+    bad[3] = replace(bad[3], left=None)
+    bad[5] = replace(bad[5], right=np.full_like(frames[5].right, 128))
+    bad[7] = replace(bad[7], left=frames[7].left[:-8], right=frames[7].right[:-8])
+    fe = StereoFrontend(scene.rig, FrontendConfig(prefetch_workers=2))
+    before = _shm_names()
+    got = list(fe.stream(bad))
+    assert [fr for fr, _ in got] == bad
+    for (_, ff), fr in zip(got, bad, strict=True):
+        _same(ff, fe.extract(fr))
+        assert "decode" in ff.timings_ms
+    assert [ff.problem for _, ff in got][3:8] == ["missing", None, "blank", None, "size"]
+    assert len(fe.worker_peak_rss_mb) == 2 and all(m > 10 for m in fe.worker_peak_rss_mb)
+    assert _shm_names() <= before  # the shared memory is gone
+
+
+def test_an_error_of_the_source_reaches_the_caller(scene: Scene, frames) -> None:
+    def source() -> Iterator[StereoFrame]:
+        yield from frames[:4]
+        raise DatasetError("cam0/data/x.png: truncated PNG")
+
+    fe = StereoFrontend(scene.rig, FrontendConfig())
+    seen = []
+    with pytest.raises(DatasetError, match="truncated PNG"):
+        for fr, _ in fe.stream(source()):
+            seen.append(fr)
+    assert seen == frames[:4]  # every frame before the error arrived
+
+
+def test_closing_the_stream_early_stops_the_workers(scene: Scene, frames) -> None:
+    fe = StereoFrontend(scene.rig, FrontendConfig())
+    before = _shm_names()
+    stream = fe.stream(iter(frames * 10))
+    next(stream)
+    t0 = time.perf_counter()
+    stream.close()
+    assert time.perf_counter() - t0 < 4.0
+    assert _shm_names() <= before
+
+
+def test_a_worker_that_dies_is_an_error(scene: Scene, frames) -> None:
+    fe = StereoFrontend(scene.rig, FrontendConfig())
+    workers = ExtractionWorkers(fe, 1)
+    stream = workers.stream(iter(frames * 10))
+    next(stream)
+    os.kill(workers._procs[0].pid, signal.SIGKILL)
+    with pytest.raises(SlamError, match=r"feature extraction process .* stopped"):
+        for _ in stream:
+            pass
+
+
+def _workers_of(pid: int) -> list[int]:
+    out = subprocess.run(
+        ["ps", "-o", "pid=,args=", "--ppid", str(pid)], capture_output=True, text=True
+    ).stdout
+    return [int(ln.split()[0]) for ln in out.splitlines() if "eurocslam.frontend.workers" in ln]
+
+
+def _gone(pid: int) -> bool:
+    status = Path(f"/proc/{pid}/status")
+    return not status.exists() or "zombie" in status.read_text()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="ps --ppid")
+def test_ctrl_c_during_a_run_stops_the_workers(v101_micro: Path, tmp_path: Path) -> None:
+    """`eurocslam run` interrupted while its workers extract: exit 130, the MCAP kept as a
+    readable .partial, no worker left behind."""
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "eurocslam.cli", "run", str(v101_micro), "-o", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # a child inherits an ignored SIGINT from a pytest started in the background
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        deadline = time.monotonic() + 30
+        workers: list[int] = []
+        while time.monotonic() < deadline and len(workers) < 2:
+            time.sleep(0.1)
+            workers = _workers_of(proc.pid)
+        assert len(workers) == 2, "the extraction workers did not start"
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    from mcap.reader import make_reader
+
+    with open(out / "run.mcap.partial", "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None and summary.statistics.message_count > 0
+    assert all(_gone(pid) for pid in workers)
