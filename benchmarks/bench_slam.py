@@ -136,7 +136,9 @@ def run_one(
         return res
     summary = json.loads((out / "summary.json").read_text())
     res["summary"] = summary
-    # the run's own peak plus its extraction workers' (separate processes)
+    # the run's own peak plus its extraction workers' (separate processes, each its own VmHWM)
+    if summary.get("peak_rss_mb"):
+        res["rss_mb"] = summary["peak_rss_mb"]
     res["rss_mb"] += sum(m or 0.0 for m in summary.get("worker_peak_rss_mb", []))
     res["ate_final"] = ate(seq, out / "trajectory_final.tum")
     res["ate_online"] = ate(seq, out / "trajectory_online.tum")

@@ -151,3 +151,21 @@ def test_ctrl_c_during_a_run_stops_the_workers(v101_micro: Path, tmp_path: Path)
         summary = make_reader(f).get_summary()
     assert summary is not None and summary.statistics.message_count > 0
     assert all(_gone(pid) for pid in workers)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="VmHWM is Linux's")
+def test_a_worker_reports_its_own_peak_memory_not_its_parents() -> None:
+    """`ru_maxrss` survives exec: a worker started by a large process would report that
+    process's peak. `peak_rss_mb` reads the worker's own high-water mark."""
+    from eurocslam.memory import peak_rss_mb
+
+    ballast = np.ones(256 * 2**20 // 8)  # 256 MB, touched
+    child = subprocess.run(
+        [sys.executable, "-c", "from eurocslam.memory import peak_rss_mb; print(peak_rss_mb())"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert peak_rss_mb() > 256
+    assert 1 < float(child.stdout) < 100
+    del ballast

@@ -55,6 +55,7 @@ from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.frontend import FrameFeatures, StereoFrontend
 from eurocslam.frontend.types import FrontendResult, TrackingState
 from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
+from eurocslam.memory import peak_rss_mb
 
 # EuRoC mounting (body x up, body z forward): the visual-only world's initial attitude
 R_WORLD_BODY_MOUNT = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
@@ -115,14 +116,6 @@ def _cpu_seconds() -> float:
         return time.process_time()
     ru = resource.getrusage(resource.RUSAGE_CHILDREN)
     return time.process_time() + ru.ru_utime + ru.ru_stime
-
-
-def _peak_rss_mb() -> float:
-    try:
-        import resource
-    except ImportError:  # pragma: no cover - not on Windows
-        return math.nan
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _finite(x: float) -> float | None:
@@ -391,7 +384,7 @@ class SlamPipeline:
         self._finish_segment()
         self.summary.wall_s = time.perf_counter() - wall0
         self.summary.cpu_s = _cpu_seconds() - cpu0
-        self.summary.peak_rss_mb = _peak_rss_mb()
+        self.summary.peak_rss_mb = peak_rss_mb()
         self.summary.worker_peak_rss_mb = list(extractor.worker_peak_rss_mb)
         if t_first is not None and t_last is not None:
             self.summary.duration_s = (t_last - t_first) * 1e-9 + 1.0 / max(

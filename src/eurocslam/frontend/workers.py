@@ -42,6 +42,7 @@ from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import SlamError
 from eurocslam.frontend.config import FrontendConfig
+from eurocslam.memory import peak_rss_mb
 
 if TYPE_CHECKING:
     from eurocslam.frontend.frontend import FrameFeatures, StereoFrontend
@@ -113,20 +114,12 @@ def _worker_main(conn: Connection) -> None:
                 conn.send(_WorkerFailure(traceback.format_exc()))
                 return
             conn.send(ff)
-        conn.send(_Done(_peak_rss_mb()))
+        conn.send(_Done(peak_rss_mb()))
     except (EOFError, OSError):
         pass  # the parent went away
     finally:
         del images
         shm.close()
-
-
-def _peak_rss_mb() -> float:
-    try:
-        import resource
-    except ImportError:  # pragma: no cover - not on Windows
-        return float("nan")
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def _untrack(shm: shared_memory.SharedMemory) -> None:
