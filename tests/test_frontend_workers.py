@@ -169,3 +169,23 @@ def test_a_worker_reports_its_own_peak_memory_not_its_parents() -> None:
     assert peak_rss_mb() > 256
     assert 1 < float(child.stdout) < 100
     del ballast
+
+
+def test_without_worker_processes_extraction_runs_inline(
+    scene: Scene, frames, monkeypatch, capsys
+) -> None:
+    """Where processes cannot start (a locked-down container, no shared memory), the stream
+    says so and extracts in the caller, with the same features."""
+
+    def refuse(*args, **kwargs):
+        raise OSError("process creation not permitted")
+
+    monkeypatch.setattr(subprocess, "Popen", refuse)
+    fe = StereoFrontend(scene.rig, FrontendConfig())
+    before = _shm_names()
+    got = list(fe.stream(frames[:4]))
+    assert [fr for fr, _ in got] == frames[:4]
+    for (_, ff), fr in zip(got, frames[:4], strict=True):
+        _same(ff, fe.extract(fr))
+    assert "extracting in this process" in capsys.readouterr().err
+    assert _shm_names() <= before

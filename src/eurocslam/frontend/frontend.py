@@ -15,6 +15,7 @@ worker thread (OpenCV releases the GIL).
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from collections.abc import Iterable, Iterator
@@ -172,13 +173,22 @@ class StereoFrontend:
         thread and extracted (rectification, ORB, stereo matching) by `prefetch_workers` worker
         processes while the caller tracks the current one (`frontend.workers`).
         `prefetch=False` runs everything inline."""
-        if not self.config.prefetch:
+        from eurocslam.frontend.workers import ExtractionWorkers
+
+        workers = None
+        if self.config.prefetch:
+            try:
+                workers = ExtractionWorkers(self, self.config.prefetch_workers)
+            except (OSError, ValueError) as e:  # no shared memory, no process start here
+                print(
+                    f"note: feature extraction workers could not start ({e}); "
+                    "extracting in this process (slower; frontend.prefetch: false silences this)",
+                    file=sys.stderr,
+                )
+        if workers is None:
             for fr in frames:
                 yield fr, self.extract(fr)
             return
-        from eurocslam.frontend.workers import ExtractionWorkers
-
-        workers = ExtractionWorkers(self, self.config.prefetch_workers)
         try:
             yield from workers.stream(frames)
         finally:
