@@ -7,10 +7,10 @@ window, optimise the pose on stereo reprojection errors with outlier rejection (
 the second at the refined pose), recover with `cv2.solvePnPRansac` when the prediction fails,
 create landmarks at keyframes and cull unreliable ones.
 
-Two stages so both cores work: `extract(frame)` (decode is the reader's, then rectify, ORB,
-stereo matching) is thread-safe and pure; `track(features, prediction)` is sequential.
-`process(frame, prediction)` is both; `stream(frames)` runs extraction one frame ahead in a
-worker thread (OpenCV releases the GIL).
+Two stages so both cores work: `extract(frame)` (rectify, ORB, stereo matching) is pure and
+thread-safe; `track(features, prediction)` is sequential. `process(frame, prediction)` is both;
+`stream(frames)` decodes the next frames in a reader thread and extracts them in worker
+processes while the caller tracks the current one (`frontend/workers.py`).
 """
 
 from __future__ import annotations
@@ -61,19 +61,6 @@ def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:
     if float(sub.std()) < config.image_min_std:
         return "blank"
     return None
-
-
-@dataclass(frozen=True)
-class _Partial:
-    """Extraction before stereo matching (what the worker threads produce)."""
-
-    t_ns: int
-    problem: str | None
-    left: Features
-    right: Features
-    left_img: U8 | None  # rectified images
-    right_img: U8 | None
-    timings_ms: dict[str, float]
 
 
 @dataclass(frozen=True)
@@ -247,7 +234,26 @@ class StereoFrontend:
 
     def extract(self, frame: StereoFrame) -> FrameFeatures:
         """Rectify, ORB on both images, stereo matching. Thread-safe."""
-        return self._match(self._extract_images(frame))
+        problem = self.image_problem(frame)
+        if problem is not None:
+            e = Features.empty()
+            return FrameFeatures(frame.t_ns, problem, e, e, StereoMatches(*_no_stereo(0)), {})
+        t0 = time.perf_counter()
+        left = self._rectifier.rectify_left(frame.left)
+        right = self._rectifier.rectify_right(frame.right)
+        t1 = time.perf_counter()
+        ex = self._extractor()
+        fl = ex.extract(left)
+        fr = ex.extract(right)
+        t2 = time.perf_counter()
+        sm = match_stereo(fl, fr, left, right, self.scale, self.config, self.rectified)
+        t3 = time.perf_counter()
+        timings = {
+            "rectify": (t1 - t0) * 1e3,
+            "orb": (t2 - t1) * 1e3,
+            "stereo_matching": (t3 - t2) * 1e3,
+        }
+        return FrameFeatures(frame.t_ns, None, fl, fr, sm, timings)
 
     def image_problem(self, frame: StereoFrame) -> str | None:
         """Why a frame's images cannot be tracked (`image_problem` of either, or 'size'), or
@@ -260,36 +266,6 @@ class StereoFrontend:
         ):
             problem = "size"
         return problem
-
-    def _extract_images(self, frame: StereoFrame) -> _Partial:
-        """Rectification and ORB."""
-        timings: dict[str, float] = {}
-        problem = self.image_problem(frame)
-        if problem is not None:
-            e = Features.empty()
-            return _Partial(frame.t_ns, problem, e, e, None, None, timings)
-        t0 = time.perf_counter()
-        left = self._rectifier.rectify_left(frame.left)
-        right = self._rectifier.rectify_right(frame.right)
-        t1 = time.perf_counter()
-        ex = self._extractor()
-        fl = ex.extract(left)
-        fr = ex.extract(right)
-        t2 = time.perf_counter()
-        timings.update(rectify=(t1 - t0) * 1e3, orb=(t2 - t1) * 1e3)
-        return _Partial(frame.t_ns, None, fl, fr, left, right, timings)
-
-    def _match(self, p: _Partial) -> FrameFeatures:
-        """Stereo matching."""
-        if p.problem is not None or p.left_img is None or p.right_img is None:
-            stereo = StereoMatches(*_no_stereo(len(p.left)))
-            return FrameFeatures(p.t_ns, p.problem, p.left, p.right, stereo, p.timings_ms)
-        t0 = time.perf_counter()
-        sm = match_stereo(
-            p.left, p.right, p.left_img, p.right_img, self.scale, self.config, self.rectified
-        )
-        p.timings_ms["stereo_matching"] = (time.perf_counter() - t0) * 1e3
-        return FrameFeatures(p.t_ns, None, p.left, p.right, sm, p.timings_ms)
 
     # ---- stage 2: tracking (sequential) -----------------------------------------------------
     def track(self, ff: FrameFeatures, T_world_body_pred: F64 | None = None) -> FrontendResult:
