@@ -4,7 +4,8 @@
 For each of the 11 EuRoC sequences, `eurocslam synth` renders a replica from the real ground
 truth (`../shared/data/euroc/groundtruth`): real motion, rendered stereo through the real camera
 model, simulated IMU (V1_01: its real IMU rows). Each replica is then run twice, stereo-inertial
-and `--no-imu`, each in its own subprocess with MCAP writing (peak RSS from `os.wait4`), and the
+and `--no-imu`, each in its own subprocess with MCAP writing (peak RSS: the run's and its
+extraction workers', from its summary; `os.wait4` if it failed), and the
 final trajectory is evaluated against the replica's exact ground truth: translation ATE RMSE
 after SE(3) Umeyama alignment. The published numbers beside them are stereo-inertial results on
 the REAL images (GUIDE section 4), for scale only: a replica is easier (no motion blur,
