@@ -71,13 +71,15 @@ def run_once(v: Variant, seq: Path, out: Path, end: float | None) -> dict[str, f
     if end is not None:
         cmd += ["--end", f"{end:g}"]
     env = dict(os.environ, PYTHONPATH=str(v.src))
-    t = time.perf_counter()
-    p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    _, status, usage = os.wait4(p.pid, 0)  # CPU of the run and of its (reaped) workers
-    wall = time.perf_counter() - t
-    err = p.stderr.read() if p.stderr else ""
-    if os.waitstatus_to_exitcode(status) != 0:
-        raise SystemExit(f"{v.name}: eurocslam run failed: {err.strip()[-800:]}")
+    with tempfile.TemporaryFile("w+") as err:  # a file, not a pipe: a long stderr cannot block
+        t = time.perf_counter()
+        p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(p.pid, 0)  # CPU of the run and of its (reaped) workers
+        wall = time.perf_counter() - t
+        p.returncode = os.waitstatus_to_exitcode(status)
+        if p.returncode != 0:
+            err.seek(0)
+            raise SystemExit(f"{v.name}: eurocslam run failed: {err.read().strip()[-800:]}")
     s = json.loads((out / "summary.json").read_text())
     return {
         "rtf": s["realtime_factor"],
@@ -103,6 +105,8 @@ def main() -> int:
     variants = [parse_variant(t) for t in args.variants]
     if len(variants) < 2 or len({v.name for v in variants}) != len(variants):
         raise SystemExit("give at least two variants with distinct names")
+    if args.runs < 1:
+        raise SystemExit("--runs: at least 1")
     if not PYTHON.exists():
         raise SystemExit(f"no virtual environment at {PYTHON.parent.parent} (see README)")
     duration = args.duration or None
@@ -142,8 +146,8 @@ def main() -> int:
         f"{args.runs} rounds interleaved; medians (min-max)"
     )
     print(
-        "| variant | revision | args | RTF | RTF / first, per round | wall s | CPU s per data s "
-        "| final batch s | final ATE mm |"
+        "| variant | revision | args | RTF | RTF / first: median (per round) | wall s "
+        "| CPU s per data s | final batch s | final ATE mm |"
     )
     print("|---|---|---|---|---|---|---|---|---|")
     first = variants[0]
@@ -160,7 +164,8 @@ def main() -> int:
         ratios = [a["rtf"] / b["rtf"] for a, b in zip(v.runs, first.runs, strict=True)]
         print(
             f"| {v.name} | {v.rev} | {' '.join(v.args) or '-'} | {med('rtf')} "
-            f"| {statistics.median(ratios):.3f} | {med('wall', spec='.1f')} | {med('cpu_per_s')} "
+            f"| {statistics.median(ratios):.3f} ({' '.join(f'{r:.3f}' for r in ratios)}) "
+            f"| {med('wall', spec='.1f')} | {med('cpu_per_s')} "
             f"| {med('final_batch', spec='.1f')} | {med('ate_mm')} |"
         )
     print(

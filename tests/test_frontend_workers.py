@@ -105,6 +105,47 @@ def test_a_worker_that_dies_is_an_error(scene: Scene, frames) -> None:
             pass
 
 
+def test_a_worker_that_dies_while_idle_is_an_error(scene: Scene, frames) -> None:
+    """Killed while the reader waits on a slow source: the next task cannot be sent."""
+
+    def slow() -> Iterator[StereoFrame]:
+        for fr in frames * 3:
+            time.sleep(0.05)
+            yield fr
+
+    fe = StereoFrontend(scene.rig, FrontendConfig())
+    workers = ExtractionWorkers(fe, 2)
+    stream = workers.stream(slow())
+    next(stream)
+    os.kill(workers._procs[1].pid, signal.SIGKILL)
+    with pytest.raises(SlamError, match=r"feature extraction process .* stopped"):
+        for _ in stream:
+            pass
+
+
+def test_the_shared_memory_has_no_name_once_the_workers_run(scene: Scene, frames) -> None:
+    """Nothing is left in /dev/shm even if the process is killed mid-run."""
+    before = _shm_names()
+    fe = StereoFrontend(scene.rig, FrontendConfig())
+    stream = fe.stream(iter(frames))
+    next(stream)
+    assert _shm_names() <= before
+    stream.close()
+
+
+def test_workers_that_do_not_start_leave_extraction_inline(
+    scene: Scene, frames, monkeypatch, capsys
+) -> None:
+    """A Python that is not one (a frozen app) or cannot import eurocslam: a note, then the
+    same features extracted in the caller."""
+    monkeypatch.setattr(sys, "executable", "/bin/false")
+    fe = StereoFrontend(scene.rig, FrontendConfig())
+    got = list(fe.stream(frames[:3]))
+    for (_, ff), fr in zip(got, frames[:3], strict=True):
+        _same(ff, fe.extract(fr))
+    assert "did not start" in capsys.readouterr().err
+
+
 def _workers_of(pid: int) -> list[int]:
     out = subprocess.run(
         ["ps", "-o", "pid=,args=", "--ppid", str(pid)], capture_output=True, text=True
@@ -119,8 +160,9 @@ def _gone(pid: int) -> bool:
 
 @pytest.mark.skipif(sys.platform != "linux", reason="ps --ppid")
 def test_ctrl_c_during_a_run_stops_the_workers(v101_micro: Path, tmp_path: Path) -> None:
-    """`eurocslam run` interrupted while its workers extract: exit 130, the MCAP kept as a
-    readable .partial, no worker left behind."""
+    """`eurocslam run` interrupted while its workers extract (SIGINT to its process group, as
+    a terminal sends it): exit 130, no traceback from the run or its workers, the MCAP kept as
+    a readable .partial, no worker left behind."""
     out = tmp_path / "out"
     proc = subprocess.Popen(
         [sys.executable, "-m", "eurocslam.cli", "run", str(v101_micro), "-o", str(out)],
@@ -129,6 +171,7 @@ def test_ctrl_c_during_a_run_stops_the_workers(v101_micro: Path, tmp_path: Path)
         text=True,
         # a child inherits an ignored SIGINT from a pytest started in the background
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        start_new_session=True,
     )
     try:
         deadline = time.monotonic() + 30
@@ -138,7 +181,7 @@ def test_ctrl_c_during_a_run_stops_the_workers(v101_micro: Path, tmp_path: Path)
             workers = _workers_of(proc.pid)
         assert len(workers) == 2, "the extraction workers did not start"
         time.sleep(1.0)
-        proc.send_signal(signal.SIGINT)
+        os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=30)
     finally:
         if proc.poll() is None:

@@ -160,13 +160,15 @@ class StereoFrontend:
         thread and extracted (rectification, ORB, stereo matching) by `prefetch_workers` worker
         processes while the caller tracks the current one (`frontend.workers`).
         `prefetch=False` runs everything inline."""
-        from eurocslam.frontend.workers import ExtractionWorkers
-
         workers = None
         if self.config.prefetch:
             try:
+                from eurocslam.frontend.workers import ExtractionWorkers
+
                 workers = ExtractionWorkers(self, self.config.prefetch_workers)
-            except (OSError, ValueError) as e:  # no shared memory, no process start here
+            # no shared memory or no processes here (a locked-down container, a platform
+            # without pass_fds), or the workers' Python cannot import eurocslam
+            except (OSError, ValueError, ImportError, AssertionError) as e:
                 print(
                     f"note: feature extraction workers could not start ({e}); "
                     "extracting in this process (slower; frontend.prefetch: false silences this)",

@@ -23,7 +23,6 @@ from __future__ import annotations
 import contextlib
 import pickle
 import queue
-import signal
 import socket
 import subprocess
 import sys
@@ -49,6 +48,7 @@ if TYPE_CHECKING:
 
 SLOTS_PER_WORKER = 3  # frames in flight per worker: one being extracted, two waiting
 _POLL_S = 0.5  # how often a blocked wait checks that the other side is still there
+_START_TIMEOUT_S = 60.0  # a worker not ready by then (imports, shared memory) did not start
 
 
 @dataclass(frozen=True)
@@ -76,6 +76,11 @@ class _End:
 
 
 @dataclass(frozen=True)
+class _Ready:
+    """A worker's first message: set up and attached to the shared memory."""
+
+
+@dataclass(frozen=True)
 class _Done:
     """A worker's last message, after the None that ends it."""
 
@@ -94,18 +99,17 @@ class _Setup:
 
 
 def _worker_main(conn: Connection) -> None:
-    """A worker process: `_Setup`, then (slot, t_ns) in, `FrameFeatures` (or `_WorkerFailure`)
-    out; None in, `_Done` out ends it."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    """A worker process: `_Setup` in, `_Ready` out; then (slot, t_ns) in, `FrameFeatures` (or
+    `_WorkerFailure`) out; None in, `_Done` out ends it."""
     from eurocslam.frontend.frontend import StereoFrontend
 
     setup: _Setup = conn.recv()
     n_slots, shape = setup.n_slots, setup.shape
     fe = StereoFrontend(setup.rig, setup.config)
-    shm = shared_memory.SharedMemory(name=setup.shm_name)
-    _untrack(shm)
+    shm = _attach(setup.shm_name)
     images = np.ndarray((n_slots, 2, *shape), np.uint8, buffer=shm.buf)
     try:
+        conn.send(_Ready())
         while (task := conn.recv()) is not None:
             slot, t_ns = task
             try:
@@ -122,16 +126,23 @@ def _worker_main(conn: Connection) -> None:
         shm.close()
 
 
-def _untrack(shm: shared_memory.SharedMemory) -> None:
-    """The parent owns the shared memory and unlinks it: keep this process's resource tracker
-    from unlinking it (and warning of a leak) when the worker exits (Python < 3.13 registers
-    every attach)."""
+def _attach(name: str) -> shared_memory.SharedMemory:
+    """Attach to the parent's shared memory without registering it with a resource tracker:
+    the parent owns and unlinks it (before Python 3.13 every attach registers, which starts a
+    tracker process per worker that would unlink it, and warn of a leak, when the worker
+    exits)."""
     try:
-        from multiprocessing import resource_tracker
-
-        resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
-    except (ImportError, AttributeError, KeyError):
+        return shared_memory.SharedMemory(name=name, track=False)  # type: ignore[call-arg]
+    except TypeError:  # Python < 3.13
         pass
+    from multiprocessing import resource_tracker
+
+    register = resource_tracker.register
+    resource_tracker.register = lambda *args, **kwargs: None  # type: ignore[assignment]
+    try:
+        return shared_memory.SharedMemory(name=name)
+    finally:
+        resource_tracker.register = register  # type: ignore[assignment]
 
 
 class ExtractionWorkers:
@@ -166,14 +177,39 @@ class ExtractionWorkers:
                             [sys.executable, "-m", "eurocslam.frontend.workers", str(fd)],
                             pass_fds=(fd,),
                             stdin=subprocess.DEVNULL,
+                            # Ctrl-C is the parent's to handle; a worker ends when its socket
+                            # closes
+                            start_new_session=True,
                         )
                     )
                 conn = Connection(mine.detach())
                 self._conns.append(conn)
-                conn.send(setup)
+                try:
+                    conn.send(setup)
+                except OSError:  # it exited at once
+                    raise _not_started(self._procs[-1]) from None
+            self._wait_ready()
         except BaseException:
             self.close()
             raise
+        # every worker has it mapped: the name can go, so that nothing is left behind even if
+        # this process is killed
+        self._shm.unlink()
+
+    def _wait_ready(self) -> None:
+        """Wait for every worker's `_Ready`; OSError if one does not start (its Python cannot
+        import eurocslam, no shared memory, ...), so that the caller can extract inline."""
+        deadline = time.monotonic() + _START_TIMEOUT_S
+        for conn, proc in zip(self._conns, self._procs, strict=True):
+            try:
+                while not conn.poll(_POLL_S):
+                    if proc.poll() is not None or time.monotonic() > deadline:
+                        raise EOFError
+                msg = conn.recv()
+            except (EOFError, OSError, pickle.UnpicklingError):
+                msg = None
+            if not isinstance(msg, _Ready):
+                raise _not_started(proc)
 
     # ---- the caller's side -------------------------------------------------------------------
     def stream(self, frames: Iterable[StereoFrame]) -> Iterator[tuple[StereoFrame, FrameFeatures]]:
@@ -210,14 +246,18 @@ class ExtractionWorkers:
                     raise EOFError
             out = conn.recv()
         except (EOFError, OSError, pickle.UnpicklingError):
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                proc.wait(timeout=_POLL_S)
-            raise SlamError(
-                f"feature extraction process {proc.pid} stopped (exit code {proc.returncode})"
-            ) from None
+            raise self._stopped(worker) from None
         if isinstance(out, _WorkerFailure):
             raise RuntimeError(f"feature extraction failed in process {proc.pid}:\n{out.trace}")
         return out
+
+    def _stopped(self, worker: int) -> SlamError:
+        proc = self._procs[worker]
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=_POLL_S)
+        return SlamError(
+            f"feature extraction process {proc.pid} stopped (exit code {proc.returncode})"
+        )
 
     # ---- the reader thread -------------------------------------------------------------------
     def _read(self, frames: Iterator[StereoFrame], jobs: queue.Queue[_Job | _End]) -> None:
@@ -241,7 +281,10 @@ class ExtractionWorkers:
                     self._images[slot, 1] = frame.right
                     worker = k % len(self._conns)
                     k += 1
-                    self._conns[worker].send((slot, frame.t_ns))
+                    try:
+                        self._conns[worker].send((slot, frame.t_ns))
+                    except OSError:
+                        raise self._stopped(worker) from None
                     job = _Job(frame, decode_ms, worker=worker, slot=slot)
                 if not self._put(jobs, job):
                     return
@@ -287,8 +330,17 @@ class ExtractionWorkers:
         if self._shm is not None:
             del self._images
             self._shm.close()
-            self._shm.unlink()
+            with contextlib.suppress(FileNotFoundError):  # unlinked once the workers started
+                self._shm.unlink()
             self._shm = None
+
+
+def _not_started(proc: subprocess.Popen[bytes]) -> OSError:
+    with contextlib.suppress(subprocess.TimeoutExpired):
+        proc.wait(timeout=_POLL_S)
+    return OSError(
+        f"feature extraction process {proc.pid} did not start (exit code {proc.returncode})"
+    )
 
 
 def _last_word(conn: Connection) -> float:
