@@ -148,7 +148,7 @@ def test_workers_that_do_not_start_leave_extraction_inline(
 
 def _workers_of(pid: int) -> list[int]:
     out = subprocess.run(
-        ["ps", "-o", "pid=,args=", "--ppid", str(pid)], capture_output=True, text=True
+        ["ps", "-ww", "-o", "pid=,args=", "--ppid", str(pid)], capture_output=True, text=True
     ).stdout
     return [int(ln.split()[0]) for ln in out.splitlines() if "eurocslam.frontend.workers" in ln]
 
@@ -171,7 +171,7 @@ def test_ctrl_c_during_a_run_stops_the_workers(v101_micro: Path, tmp_path: Path)
         text=True,
         # a child inherits an ignored SIGINT from a pytest started in the background
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-        start_new_session=True,
+        start_new_session=True,  # a process group of its own, for the test to signal
     )
     try:
         deadline = time.monotonic() + 30
