@@ -232,3 +232,33 @@ def test_without_worker_processes_extraction_runs_inline(
         _same(ff, fe.extract(fr))
     assert "extracting in this process" in capsys.readouterr().err
     assert _shm_names() <= before
+
+
+def test_workers_run_the_same_eurocslam_as_their_parent(tmp_path: Path) -> None:
+    """A parent that imports a copy of eurocslam through sys.path (not PYTHONPATH): its
+    workers import that copy too, not the installed one."""
+    import shutil
+
+    import eurocslam
+
+    copy = tmp_path / "src"
+    shutil.copytree(Path(eurocslam.__file__).parent, copy / "eurocslam")
+    script = f"""
+import sys
+sys.path.insert(0, {str(copy)!r})
+import eurocslam
+assert eurocslam.__file__.startswith({str(copy)!r}), eurocslam.__file__
+from eurocslam.dataset.synth import Scene, SynthSpec
+from eurocslam.dataset.types import StereoFrame
+from eurocslam.frontend.config import FrontendConfig
+from eurocslam.frontend.frontend import StereoFrontend
+scene = Scene.build(SynthSpec.tiny(seed=2))
+frames = [StereoFrame(int(scene.cam_t_ns[k]), scene.image(k, 0)[0], scene.image(k, 1)[0])
+          for k in range(3)]
+fe = StereoFrontend(scene.rig, FrontendConfig())
+print(len(list(fe.stream(frames))), len(fe.worker_peak_rss_mb))
+"""
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["3", "2"]  # three frames, extracted by two workers
+    assert "note:" not in r.stderr

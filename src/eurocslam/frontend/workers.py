@@ -24,6 +24,7 @@ features are the same either way.
 from __future__ import annotations
 
 import contextlib
+import os
 import pickle
 import queue
 import socket
@@ -36,6 +37,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -88,7 +90,10 @@ class _End:
 
 @dataclass(frozen=True)
 class _Ready:
-    """A worker's first message: set up and attached to the shared memory."""
+    """A worker's first message: set up and attached to the shared memory, running the code
+    of `package` (the eurocslam folder it imported)."""
+
+    package: str
 
 
 @dataclass(frozen=True)
@@ -120,7 +125,7 @@ def _worker_main(conn: Connection) -> None:
     shm = _attach(setup.shm_name)
     images = np.ndarray((n_slots, 2, *shape), np.uint8, buffer=shm.buf)
     try:
-        conn.send(_Ready())
+        conn.send(_Ready(_package_dir()))
         while (task := conn.recv()) is not None:
             slot, t_ns = task
             try:
@@ -135,6 +140,24 @@ def _worker_main(conn: Connection) -> None:
     finally:
         del images
         shm.close()
+
+
+def _package_dir() -> str:
+    import eurocslam
+
+    return str(Path(eurocslam.__file__).resolve().parent)
+
+
+def _worker_env() -> dict[str, str]:
+    """The environment of a worker: this process's, with the folder holding the eurocslam it
+    runs first on PYTHONPATH, so that a worker never imports another copy (an installed one
+    while this process runs a source tree)."""
+    env = dict(os.environ)
+    paths = [str(Path(_package_dir()).parent)]
+    if env.get("PYTHONPATH"):
+        paths.append(env["PYTHONPATH"])
+    env["PYTHONPATH"] = os.pathsep.join(paths)
+    return env
 
 
 def _attach(name: str) -> shared_memory.SharedMemory:
@@ -178,6 +201,7 @@ class ExtractionWorkers:
         # to the caller (a socket buffers a frame's features, so a worker can work ahead)
         self._conns: list[Connection] = []
         setup = _Setup(frontend.rig, frontend.config, self._shm.name, n_slots, self.shape)
+        env = _worker_env()
         try:
             for _ in range(max(1, int(n_workers))):
                 mine, theirs = socket.socketpair()
@@ -188,6 +212,7 @@ class ExtractionWorkers:
                             [sys.executable, "-c", _WORKER_COMMAND, str(fd)],
                             pass_fds=(fd,),
                             stdin=subprocess.DEVNULL,
+                            env=env,
                         )
                     )
                 conn = Connection(mine.detach())
@@ -218,6 +243,11 @@ class ExtractionWorkers:
                 msg = None
             if not isinstance(msg, _Ready):
                 raise _not_started(proc)
+            if msg.package != _package_dir():
+                raise OSError(
+                    f"feature extraction process {proc.pid} runs eurocslam from {msg.package}, "
+                    f"this process from {_package_dir()}"
+                )
 
     # ---- the caller's side -------------------------------------------------------------------
     def stream(self, frames: Iterable[StereoFrame]) -> Iterator[tuple[StereoFrame, FrameFeatures]]:
