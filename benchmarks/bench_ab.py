@@ -18,20 +18,17 @@ usage: .venv/bin/python benchmarks/bench_ab.py --sequence V2_03 [--duration 60] 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shlex
 import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
-from bench_slam import REPO, SEQUENCES, ate, machine_speed, make_replica
-
-PYTHON = REPO / ".venv" / "bin" / "python"
+from bench_slam import EXE, REPO, SEQUENCES, machine_speed, make_replica, run_one
 
 
 @dataclass
@@ -66,28 +63,20 @@ def checkout(rev: str, into: Path) -> Path:
 
 
 def run_once(v: Variant, seq: Path, out: Path, end: float | None) -> dict[str, float]:
-    cmd = [str(PYTHON), "-c", "import sys; from eurocslam.cli import main; sys.exit(main())"]
-    cmd += ["run", str(seq), "-o", str(out), "--no-progress", *v.args]
-    if end is not None:
-        cmd += ["--end", f"{end:g}"]
+    args = [*v.args, *(["--end", f"{end:g}"] if end is not None else [])]
     env = dict(os.environ, PYTHONPATH=str(v.src))
-    with tempfile.TemporaryFile("w+") as err:  # a file, not a pipe: a long stderr cannot block
-        t = time.perf_counter()
-        p = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=err)
-        _, status, usage = os.wait4(p.pid, 0)  # CPU of the run and of its (reaped) workers
-        wall = time.perf_counter() - t
-        p.returncode = os.waitstatus_to_exitcode(status)
-        if p.returncode != 0:
-            err.seek(0)
-            raise SystemExit(f"{v.name}: eurocslam run failed: {err.read().strip()[-800:]}")
-    s = json.loads((out / "summary.json").read_text())
+    r = run_one(seq, out, no_imu=False, mcap=True, extra_args=args, env=env)
+    if r["rc"] != 0:
+        raise SystemExit(f"{v.name}: eurocslam run failed: {' '.join(r['error'])}")
+    s: dict[str, Any] = r["summary"]  # type: ignore[assignment]
+    cpu = float(r["cpu_s"])  # type: ignore[arg-type]
     return {
         "rtf": s["realtime_factor"],
-        "wall": wall,
-        "cpu": usage.ru_utime + usage.ru_stime,
-        "cpu_per_s": (usage.ru_utime + usage.ru_stime) / s["duration_s"],
+        "wall": float(r["wall_s"]),  # type: ignore[arg-type]
+        "cpu": cpu,
+        "cpu_per_s": cpu / s["duration_s"],
         "final_batch": s["timings"].get("final_batch", {}).get("total_s", 0.0),
-        "ate_mm": 1e3 * ate(seq, out / "trajectory_final.tum"),
+        "ate_mm": 1e3 * float(r["ate_final"]),  # type: ignore[arg-type]
     }
 
 
@@ -107,8 +96,8 @@ def main() -> int:
         raise SystemExit("give at least two variants with distinct names")
     if args.runs < 1:
         raise SystemExit("--runs: at least 1")
-    if not PYTHON.exists():
-        raise SystemExit(f"no virtual environment at {PYTHON.parent.parent} (see README)")
+    if not EXE.exists():
+        raise SystemExit(f"no {EXE} (set up the virtual environment: see README)")
     duration = args.duration or None
     args.cache.mkdir(parents=True, exist_ok=True)
     seq = make_replica(args.sequence, args.cache, duration, args.seed)

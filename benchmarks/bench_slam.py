@@ -30,6 +30,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -115,25 +116,40 @@ def make_replica(short: str, cache: Path, duration: float | None, seed: int) -> 
 
 
 def run_one(
-    seq: Path, out: Path, no_imu: bool, mcap: bool, config: Path | None = None
+    seq: Path,
+    out: Path,
+    no_imu: bool,
+    mcap: bool,
+    config: Path | None = None,
+    extra_args: Sequence[str] = (),
+    env: dict[str, str] | None = None,
 ) -> dict[str, object]:
-    cmd = [str(EXE), "run", str(seq), "-o", str(out), "--no-progress"]
+    """`eurocslam run` in a subprocess (`env`: its environment, e.g. a PYTHONPATH with other
+    code); wall time, CPU (with its reaped extraction workers), summary, peak RSS, ATE."""
+    cmd = [str(EXE), "run", str(seq), "-o", str(out), "--no-progress", *extra_args]
     if config is not None:
         cmd += ["--config", str(config)]
     if no_imu:
         cmd.append("--no-imu")
     if not mcap:
         cmd.append("--no-mcap")
-    t = time.perf_counter()
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    _, status, usage = os.wait4(p.pid, 0)
-    wall = time.perf_counter() - t
-    stdout = p.stdout.read() if p.stdout else ""
-    stderr = p.stderr.read() if p.stderr else ""
-    rc = os.waitstatus_to_exitcode(status)
-    res: dict[str, object] = {"rc": rc, "wall_s": wall, "rss_mb": usage.ru_maxrss / 1024}
+    # its output to a file, not a pipe: read only after wait4, a long one would block the run
+    with tempfile.TemporaryFile("w+") as log:
+        t = time.perf_counter()
+        p = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
+        _, status, usage = os.wait4(p.pid, 0)
+        wall = time.perf_counter() - t
+        p.returncode = rc = os.waitstatus_to_exitcode(status)
+        log.seek(0)
+        output = log.read()
+    res: dict[str, object] = {
+        "rc": rc,
+        "wall_s": wall,
+        "cpu_s": usage.ru_utime + usage.ru_stime,
+        "rss_mb": usage.ru_maxrss / 1024,
+    }
     if rc != 0:
-        res["error"] = (stderr or stdout).strip().splitlines()[-1:] or ["?"]
+        res["error"] = output.strip().splitlines()[-1:] or ["?"]
         return res
     summary = json.loads((out / "summary.json").read_text())
     res["summary"] = summary

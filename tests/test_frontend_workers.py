@@ -94,28 +94,20 @@ def test_closing_the_stream_early_stops_the_workers(scene: Scene, frames) -> Non
     assert _shm_names() <= before
 
 
-def test_a_worker_that_dies_is_an_error(scene: Scene, frames) -> None:
-    fe = StereoFrontend(scene.rig, FrontendConfig())
-    workers = ExtractionWorkers(fe, 1)
-    stream = workers.stream(iter(frames * 10))
-    next(stream)
-    os.kill(workers._procs[0].pid, signal.SIGKILL)
-    with pytest.raises(SlamError, match=r"feature extraction process .* stopped"):
-        for _ in stream:
-            pass
+@pytest.mark.parametrize("idle", [False, True], ids=["extracting", "idle"])
+def test_a_worker_that_dies_is_an_error(scene: Scene, frames, idle: bool) -> None:
+    """Killed while it has frames to extract, or while the reader waits on a slow source (the
+    next task cannot be sent)."""
 
-
-def test_a_worker_that_dies_while_idle_is_an_error(scene: Scene, frames) -> None:
-    """Killed while the reader waits on a slow source: the next task cannot be sent."""
-
-    def slow() -> Iterator[StereoFrame]:
-        for fr in frames * 3:
-            time.sleep(0.05)
+    def source() -> Iterator[StereoFrame]:
+        for fr in frames * 10:
+            if idle:
+                time.sleep(0.05)
             yield fr
 
     fe = StereoFrontend(scene.rig, FrontendConfig())
     workers = ExtractionWorkers(fe, 2)
-    stream = workers.stream(slow())
+    stream = workers.stream(source())
     next(stream)
     os.kill(workers._procs[1].pid, signal.SIGKILL)
     with pytest.raises(SlamError, match=r"feature extraction process .* stopped"):

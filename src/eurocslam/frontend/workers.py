@@ -233,6 +233,7 @@ class ExtractionWorkers:
         """Wait for every worker's `_Ready`; OSError if one does not start (its Python cannot
         import eurocslam, no shared memory, ...), so that the caller can extract inline."""
         deadline = time.monotonic() + _START_TIMEOUT_S
+        package = _package_dir()
         for conn, proc in zip(self._conns, self._procs, strict=True):
             try:
                 while not conn.poll(_POLL_S):
@@ -243,10 +244,10 @@ class ExtractionWorkers:
                 msg = None
             if not isinstance(msg, _Ready):
                 raise _not_started(proc)
-            if msg.package != _package_dir():
+            if msg.package != package:
                 raise OSError(
                     f"feature extraction process {proc.pid} runs eurocslam from {msg.package}, "
-                    f"this process from {_package_dir()}"
+                    f"this process from {package}"
                 )
 
     # ---- the caller's side -------------------------------------------------------------------
