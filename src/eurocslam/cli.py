@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import pkgutil
 import sys
 import traceback
@@ -74,7 +75,32 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _Console(logging.StreamHandler):  # type: ignore[type-arg]
+    """Log records as plain lines on whatever `sys.stderr` is when they are emitted."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.setFormatter(logging.Formatter("%(message)s"))
+
+    @property  # type: ignore[override]
+    def stream(self):  # type: ignore[no-untyped-def]
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, _value: object) -> None:
+        pass
+
+
+def _console_logging() -> None:
+    """The library's log records (notes, warnings) on stderr, set up once per process."""
+    log = logging.getLogger("eurocslam")
+    if not any(isinstance(h, _Console) for h in log.handlers):
+        log.addHandler(_Console())
+    log.setLevel(logging.INFO)
+
+
 def main(argv: list[str] | None = None) -> int:
+    _console_logging()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
