@@ -34,7 +34,9 @@ from pathlib import Path
 from eurocslam.dataset import open_sequence
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.frontend import StereoFrontend
+from eurocslam.frontend.extraction import Extractor
+from eurocslam.frontend.stream import FeatureStream
+from eurocslam.frontend.tracker import StereoTracker
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_slam  # the replicas and the `eurocslam run` runner are shared
@@ -58,13 +60,15 @@ def speed(seq_path: Path, max_frames: int, repeat: int) -> dict[str, float]:
     t_end = int(seq.frame_times[min(max_frames, len(seq.frame_times)) - 1])
     out: dict[str, float] = {}
     # sequential, one thread: per-stage times
-    fe = StereoFrontend(seq.rig, FrontendConfig(prefetch=False))
+    cfg = FrontendConfig(prefetch=False)
+    extractor = Extractor(seq.rig, cfg)
+    tracker = StereoTracker(extractor.rectifier, cfg)
     decode: list[float] = []
     per: dict[str, list[float]] = {k: [] for k in STAGES}
     n = 0
     t0 = time.perf_counter()
     for fr in timed(iter(seq.frames(t_end_ns=t_end)), decode):
-        res = fe.process(fr)
+        res = tracker.track(extractor.extract(fr))
         for k in STAGES:
             if k in res.timings_ms:
                 per[k].append(res.timings_ms[k])
@@ -79,11 +83,13 @@ def speed(seq_path: Path, max_frames: int, repeat: int) -> dict[str, float]:
     # the median of `repeat` runs (the machine is shared)
     fps = []
     for _ in range(repeat):
-        fe2 = StereoFrontend(seq.rig, FrontendConfig(prefetch=True))
+        cfg2 = FrontendConfig(prefetch=True)
+        stream = FeatureStream(seq.rig, cfg2)
+        tracker2 = StereoTracker(stream.extractor.rectifier, cfg2)
         n2 = 0
         t0 = time.perf_counter()
-        for _, ff in fe2.stream(seq.frames(t_end_ns=t_end)):
-            fe2.track(ff)
+        for _, ff in stream(seq.frames(t_end_ns=t_end)):
+            tracker2.track(ff)
             n2 += 1
         fps.append(n2 / (time.perf_counter() - t0))
     out["fps_pipelined"] = statistics.median(fps)

@@ -16,8 +16,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def test_shipped_yaml_equals_dataclass_defaults() -> None:
     shipped = load_config(REPO / "configs" / "euroc.yaml")
-    # the frontend section (a plain mapping here) is checked against FrontendConfig below
-    assert dataclasses.replace(shipped, frontend={}) == RunConfig()
+    assert shipped == RunConfig()
     assert load_config(None) == shipped  # no --config: the shipped file
 
 
@@ -38,6 +37,14 @@ def test_resolved_config_round_trips(tmp_path: Path) -> None:
         ({"health": {"max_speed": -1}}, "health.max_speed"),
         ({"backend": {"final_batch": "yes"}}, "backend.final_batch"),
         ({"imu": {"gravity": "g"}}, "imu.gravity"),
+        ({"mode": "inertial"}, "mode"),
+        ({"frontend": {"n_featurs": 800}}, "frontend.n_featurs"),
+        ({"frontend": {"n_features": "many"}}, "frontend.n_features"),
+        ({"frontend": {"n_features": 10}}, "frontend.n_features"),
+        ({"frontend": {"min_depth_m": 50.0}}, "frontend.min_depth_m"),
+        ({"frontend": {"rectify_alpha": 2.0}}, "frontend.rectify_alpha"),
+        ({"frontend": {"prefetch": 1}}, "frontend.prefetch"),
+        ({"frontend": [1, 2]}, "frontend"),
     ],
 )
 def test_bad_keys_and_values_name_the_key(tmp_path: Path, data: dict, needle: str) -> None:
@@ -62,6 +69,30 @@ def test_shipped_yaml_lists_every_frontend_tunable_at_its_default() -> None:
     field, at the dataclass default."""
     from eurocslam.frontend.config import FrontendConfig
 
-    shipped = yaml.safe_load((REPO / "configs" / "euroc.yaml").read_text())["frontend"]
+    text = yaml.safe_load((REPO / "configs" / "euroc.yaml").read_text())
+    assert set(text) == {f.name for f in dataclasses.fields(RunConfig)}
+    shipped = text["frontend"]
     assert set(shipped) == {f.name for f in dataclasses.fields(FrontendConfig)}
-    assert FrontendConfig.from_dict(shipped) == FrontendConfig()
+    assert config_from_dict({"frontend": shipped}).frontend == FrontendConfig()
+
+
+def test_unknown_key_error_lists_the_allowed_keys(tmp_path: Path) -> None:
+    p = tmp_path / "typo.yaml"
+    p.write_text("frontend:\n  n_featurs: 800\n")
+    with pytest.raises(ConfigError) as e:
+        load_config(p)
+    msg = str(e.value)
+    assert msg.startswith(f"{p}: unknown key 'frontend.n_featurs'")
+    assert "n_features" in msg and "reuse_map" in msg  # the allowed keys
+
+
+def test_mode_is_resolved_against_the_sequence() -> None:
+    from eurocslam.config import STEREO_INERTIAL, VISUAL_ONLY, resolve_mode
+
+    assert resolve_mode(RunConfig(), has_imu=True).mode == STEREO_INERTIAL
+    vo = RunConfig(mode=VISUAL_ONLY)
+    assert resolve_mode(vo, has_imu=False) is vo
+    with pytest.raises(ConfigError, match="seq: no IMU data"):
+        resolve_mode(RunConfig(), has_imu=False, where="seq")
+    with pytest.raises(ConfigError, match="not resolved"):
+        _ = RunConfig().inertial

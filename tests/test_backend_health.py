@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from eurocslam.backend.estimator import NavEstimate
-from eurocslam.backend.health import check_lost, check_state, check_step
+from eurocslam.backend.health import Health
+from eurocslam.backend.types import NavEstimate
 from eurocslam.config import HealthConfig
 from eurocslam.geometry import make_T, so3_exp
 
 CFG = HealthConfig()
+VIO = Health(CFG, inertial=True)
+VO = Health(CFG, inertial=False)
 
 
 def _nav(**kw: object) -> NavEstimate:
@@ -25,28 +27,33 @@ def _nav(**kw: object) -> NavEstimate:
 
 
 def test_good_state_passes() -> None:
-    assert check_state(_nav(), CFG).ok
+    assert VIO.state(_nav()).ok
+    assert VO.state(_nav()).ok
 
 
 def test_bad_states_are_caught_with_a_reason() -> None:
     T = make_T(np.eye(3), np.array([np.nan, 0, 0]))
-    assert "non-finite" in check_state(_nav(T_world_body=T), CFG).reason
-    assert "velocity" in check_state(_nav(v_world=np.array([20.0, 0, 0])), CFG).reason
-    assert "gyro bias" in check_state(_nav(bg=np.array([0.0, 1.0, 0.0])), CFG).reason
-    assert "accel bias" in check_state(_nav(ba=np.array([0.0, 0.0, 3.0])), CFG).reason
+    assert "non-finite" in VIO.state(_nav(T_world_body=T)).reason
+    assert "non-finite" in VO.state(_nav(T_world_body=T)).reason
+    assert "velocity" in VIO.state(_nav(v_world=np.array([20.0, 0, 0]))).reason
+    assert "gyro bias" in VIO.state(_nav(bg=np.array([0.0, 1.0, 0.0]))).reason
+    assert "accel bias" in VIO.state(_nav(ba=np.array([0.0, 0.0, 3.0]))).reason
     bad_R = make_T(np.eye(3) * 1.1, np.zeros(3))
-    assert not check_state(_nav(T_world_body=bad_R), CFG).ok
+    assert not VIO.state(_nav(T_world_body=bad_R)).ok
+    assert not VO.state(_nav(T_world_body=bad_R)).ok
     # visual-only: velocity and biases are not physical states there
-    assert check_state(_nav(v_world=np.array([20.0, 0, 0])), CFG, use_imu=False).ok
+    assert VO.state(_nav(v_world=np.array([20.0, 0, 0]))).ok
+    assert VO.state(_nav(bg=np.array([0.0, 1.0, 0.0]))).ok
 
 
 def test_step_and_lost_limits() -> None:
     a = make_T(np.eye(3), np.zeros(3))
-    assert check_step(a, make_T(np.eye(3), np.array([0.05, 0, 0])), CFG).ok
-    assert not check_step(a, make_T(np.eye(3), np.array([3.0, 0, 0])), CFG).ok
-    assert check_lost(1.0, imu_ok=True, use_imu=True, cfg=CFG).ok
-    assert not check_lost(CFG.max_lost_s + 0.1, imu_ok=True, use_imu=True, cfg=CFG).ok
+    assert VIO.step(a, make_T(np.eye(3), np.array([0.05, 0, 0]))).ok
+    jump = VIO.step(a, make_T(np.eye(3), np.array([3.0, 0, 0])))
+    assert not jump.ok and "jumped 3.00 m" in jump.reason
+    assert VIO.lost(1.0, imu_ok=True).ok
+    assert "no visual tracking" in VIO.lost(CFG.max_lost_s + 0.1, imu_ok=True).reason
     # blind during an IMU dropout, or visual-only: much shorter
-    assert not check_lost(0.5, imu_ok=False, use_imu=True, cfg=CFG).ok
-    assert not check_lost(0.5, imu_ok=True, use_imu=False, cfg=CFG).ok
-    assert check_lost(0.1, imu_ok=True, use_imu=False, cfg=CFG).ok
+    assert "IMU dropout" in VIO.lost(0.5, imu_ok=False).reason
+    assert "visual-only" in VO.lost(0.5, imu_ok=True).reason
+    assert VO.lost(0.1, imu_ok=True).ok

@@ -12,9 +12,12 @@ import pytest
 from eurocslam.dataset import open_sequence
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.frontend import StereoFrontend
-from eurocslam.frontend.types import TrackingState
+from eurocslam.frontend.extraction import Extractor
+from eurocslam.frontend.stream import FeatureStream
+from eurocslam.frontend.tracker import StereoTracker
+from eurocslam.frontend.types import MapCorrection, TrackingState
 from eurocslam.geometry import inv_T, make_T, rotation_angle, so3_exp
+from frontend_helpers import Frontend
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +46,7 @@ def _vertical_offset(left: np.ndarray, right: np.ndarray, uL: float, uR: float, 
 
 def test_rectified_stereo_matches_on_real_images(v101_frames) -> None:
     seq, frames = v101_frames
-    fe = StereoFrontend(seq.rig, FrontendConfig())
+    fe = Extractor(seq.rig, FrontendConfig())
     rect = fe.rectifier
     offsets: list[float] = []
     for fr in frames[::20]:
@@ -78,10 +81,10 @@ def test_static_visual_odometry_stays_put(v101_micro: Path) -> None:
     """`run --no-imu` (frontend + GTSAM sliding-window BA, no IMU factors) on the 95 real
     frames of a drone standing still: a pose for every complete frame, < 1 cm in total."""
     from eurocslam.config import RunConfig
-    from eurocslam.pipeline import SlamPipeline
+    from eurocslam.pipeline.slam import SlamPipeline
 
     seq = open_sequence(v101_micro)
-    res = SlamPipeline(seq, RunConfig(), use_imu=False).run()
+    res = SlamPipeline(seq, RunConfig(mode="visual-only")).run()
     s = res.summary
     assert s.mode == "visual-only"
     assert s.frames == 99 and s.frames_with_pose >= 95  # cam1 lacks the last 4 images
@@ -96,7 +99,7 @@ def test_static_visual_odometry_stays_put(v101_micro: Path) -> None:
 
 def test_landmark_ids_persist_and_observations_are_unique(v101_frames) -> None:
     seq, frames = v101_frames
-    fe = StereoFrontend(seq.rig, FrontendConfig())
+    fe = Frontend(seq.rig, FrontendConfig())
     states, ids_seen = [], []
     for fr in frames:
         res = fe.process(fr)
@@ -128,7 +131,7 @@ def test_degraded_frames_are_reported_and_tracking_recovers(v101_frames, mh01_fi
             o = other[i - 20]
             fr = replace(fr, left=o.left, right=o.right)
         stream.append(fr)
-    fe = StereoFrontend(seq.rig, FrontendConfig())
+    fe = Frontend(seq.rig, FrontendConfig())
     results = [fe.process(fr) for fr in stream]
     states = [r.state for r in results]
     assert states[8] == states[9] == states[10] == TrackingState.NO_IMAGE
@@ -160,9 +163,11 @@ def test_degraded_frames_are_reported_and_tracking_recovers(v101_frames, mh01_fi
 
 def test_prefetch_stream_matches_inline_processing(v101_frames) -> None:
     seq, frames = v101_frames
-    a = StereoFrontend(seq.rig, FrontendConfig(prefetch=True))
-    b = StereoFrontend(seq.rig, FrontendConfig(prefetch=False))
-    ra = [a.track(ff) for _, ff in a.stream(frames[:15])]
+    cfg = FrontendConfig(prefetch=True)
+    a = FeatureStream(seq.rig, cfg)
+    tracker = StereoTracker(a.extractor.rectifier, cfg)
+    b = Frontend(seq.rig, FrontendConfig(prefetch=False))
+    ra = [tracker.track(ff) for _, ff in a(frames[:15])]
     rb = [b.process(fr) for fr in frames[:15]]
     for x, y in zip(ra, rb, strict=True):
         assert x.state == y.state
@@ -171,23 +176,25 @@ def test_prefetch_stream_matches_inline_processing(v101_frames) -> None:
 
 
 def test_backend_correction_moves_the_local_map(v101_frames) -> None:
-    """`correct` with the whole map and pose moved by a rigid transform: the next frame is
-    tracked in the moved frame (the frontend stays consistent with the backend)."""
+    """A `MapCorrection` moving the pose and the whole map by a rigid transform: the next frame
+    is tracked in the moved frame (the frontend stays consistent with the backend)."""
     seq, frames = v101_frames
-    fe = StereoFrontend(seq.rig, FrontendConfig())
+    fe = Frontend(seq.rig, FrontendConfig())
     for fr in frames[:10]:
         res = fe.process(fr)
     T_shift = make_T(so3_exp(np.array([0.0, 0.0, 0.3])), np.array([1.0, -2.0, 0.5]))
-    ids = fe.map.ids.copy()
-    xyz = fe.landmark_positions(ids)
+    tr = fe.tracker
+    ids = tr.map.ids.copy()
+    xyz = tr.landmark_positions(ids)
     moved = xyz @ T_shift[:3, :3].T + T_shift[:3, 3]
-    fe.correct(T_shift @ res.T_world_body, (ids, moved))
-    np.testing.assert_allclose(fe.landmark_positions(ids), moved)
+    tr.apply(MapCorrection(T_shift @ res.T_world_body, T_new_old=T_shift))
+    np.testing.assert_allclose(tr.landmark_positions(ids), moved, atol=1e-12)
     nxt = fe.process(frames[10])
     assert nxt.state == TrackingState.OK
     err = inv_T(T_shift @ res.T_world_body) @ nxt.T_world_body
     assert np.linalg.norm(err[:3, 3]) < 0.005
-    # ids unknown to the map are ignored; a dict works too
-    fe.correct(nxt.T_world_body, {10**12: np.zeros(3), int(ids[0]): moved[0] + 0.001})
-    np.testing.assert_allclose(fe.landmark_positions(ids[:1])[0], moved[0] + 0.001)
-    assert np.isnan(fe.landmark_positions(np.array([10**12]))).all()
+    # landmark positions by id: ids unknown to the map and non-finite positions are ignored
+    new = np.array([np.zeros(3), moved[0] + 0.001, np.full(3, np.nan)])
+    tr.apply(MapCorrection(nxt.T_world_body, None, np.array([10**12, ids[0], ids[1]]), new))
+    np.testing.assert_allclose(tr.landmark_positions(ids[:2]), [moved[0] + 0.001, moved[1]])
+    assert np.isnan(tr.landmark_positions(np.array([10**12]))).all()

@@ -13,9 +13,10 @@ from eurocslam.dataset.synth import Scene, SynthSpec, synthesize
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.eval.align import align
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.frontend import StereoFrontend
+from eurocslam.frontend.extraction import Extractor
 from eurocslam.frontend.stereo import triangulate_rect
-from eurocslam.pipeline import SlamPipeline
+from eurocslam.pipeline.slam import SlamPipeline
+from frontend_helpers import Frontend
 
 
 @pytest.fixture(scope="module")
@@ -30,8 +31,8 @@ def tiny_sequence(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_triangulated_points_agree_with_rendered_depth(tiny_scene: Scene) -> None:
     """Stereo-matched keypoints triangulate to the depth the renderer drew at that pixel."""
-    fe = StereoFrontend(tiny_scene.rig, FrontendConfig())
-    g = fe.rectified
+    fe = Extractor(tiny_scene.rig, FrontendConfig())
+    g = fe.geometry
     rel_all = []
     for k in (0, 39):
         left, out = tiny_scene.image(k, 0, want_depth=True)
@@ -55,7 +56,7 @@ def test_triangulated_points_agree_with_rendered_depth(tiny_scene: Scene) -> Non
 def _vo_ate(seq_path: Path) -> tuple[float, object, float]:
     """`run --no-imu` (frontend + GTSAM sliding-window BA): (final ATE, summary, path length)."""
     seq = open_sequence(seq_path)
-    res = SlamPipeline(seq, RunConfig(), use_imu=False).run()
+    res = SlamPipeline(seq, RunConfig(mode="visual-only")).run()
     gt = seq.groundtruth
     assert gt is not None
     idx = np.searchsorted(gt.t_ns, res.final_t_ns)
@@ -96,12 +97,12 @@ def test_archived_landmarks_are_re_found_where_they_were(tiny_sequence: Path) ->
     gt = seq.groundtruth
     assert gt is not None
     T_gt = dict(zip(gt.t_ns.tolist(), gt.T_world_body(), strict=True))
-    fe = StereoFrontend(seq.rig, FrontendConfig(landmark_max_unseen_frames=2))
-    g = fe.rectified
+    fe = Frontend(seq.rig, FrontendConfig(landmark_max_unseen_frames=2))
+    g = fe.extractor.geometry
     first: dict[int, np.ndarray] = {}  # id -> first sighting, true world
     tracked_px, reused_px = [], []
     for frame in seq.frames():
-        next_id = fe.map.next_id
+        next_id = fe.tracker.map.next_id
         r = fe.process(frame)
         ids, uv = r.landmark_ids, r.stereo_uv
         reused = np.zeros(ids.size, bool)

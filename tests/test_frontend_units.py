@@ -7,10 +7,9 @@ import numpy as np
 import pytest
 
 from eurocslam.dataset.calib import default_rig
-from eurocslam.errors import ConfigError
 from eurocslam.frontend.config import FrontendConfig
+from eurocslam.frontend.extraction import image_problem
 from eurocslam.frontend.features import Features, OrbExtractor, bucket_select, hamming
-from eurocslam.frontend.frontend import image_problem
 from eurocslam.frontend.stereo import (
     StereoRectifier,
     project_rect,
@@ -240,20 +239,6 @@ def test_archive_grows_and_compacts() -> None:
     m.retire(np.arange(len(m)) >= 2500)
     assert a.live.size == size and len(a) == a.n == 500 + size - 3000 + 1
     assert sorted(a.ids[: a.n][:500].tolist()) == list(range(2001, 3000, 2))
-
-
-def test_config_from_dict_rejects_unknown_and_bad_values() -> None:
-    assert FrontendConfig.from_dict(None) == FrontendConfig()
-    cfg = FrontendConfig.from_dict({"n_features": 800, "stereo_ratio": 0.8, "prefetch": False})
-    assert cfg.n_features == 800 and cfg.stereo_ratio == 0.8 and cfg.prefetch is False
-    with pytest.raises(ConfigError, match=r"frontend\.n_featurs: unknown key"):
-        FrontendConfig.from_dict({"n_featurs": 800})
-    with pytest.raises(ConfigError, match=r"frontend\.n_features: expected int"):
-        FrontendConfig.from_dict({"n_features": "many"})
-    with pytest.raises(ConfigError, match=r"frontend\.min_depth_m: value"):
-        FrontendConfig.from_dict({"min_depth_m": 50.0})
-    with pytest.raises(ConfigError, match=r"frontend\.prefetch: expected bool"):
-        FrontendConfig.from_dict({"prefetch": 1})
 
 
 def test_features_empty() -> None:

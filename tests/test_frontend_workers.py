@@ -19,7 +19,8 @@ from eurocslam.dataset.synth import Scene, SynthSpec
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import DatasetError, SlamError
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.frontend import FrameFeatures, StereoFrontend
+from eurocslam.frontend.extraction import FrameFeatures
+from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.workers import ExtractionWorkers
 
 
@@ -58,12 +59,12 @@ def test_workers_extract_what_inline_extraction_does(scene: Scene, frames) -> No
     bad[3] = replace(bad[3], left=None)
     bad[5] = replace(bad[5], right=np.full_like(frames[5].right, 128))
     bad[7] = replace(bad[7], left=frames[7].left[:-8], right=frames[7].right[:-8])
-    fe = StereoFrontend(scene.rig, FrontendConfig(prefetch_workers=2))
+    fe = FeatureStream(scene.rig, FrontendConfig(prefetch_workers=2))
     before = _shm_names()
-    got = list(fe.stream(bad))
+    got = list(fe(bad))
     assert [fr for fr, _ in got] == bad
     for (_, ff), fr in zip(got, bad, strict=True):
-        _same(ff, fe.extract(fr))
+        _same(ff, fe.extractor.extract(fr))
         assert "decode" in ff.timings_ms
     assert [ff.problem for _, ff in got][3:8] == ["missing", None, "blank", None, "size"]
     assert len(fe.worker_peak_rss_mb) == 2 and all(m > 10 for m in fe.worker_peak_rss_mb)
@@ -75,18 +76,18 @@ def test_an_error_of_the_source_reaches_the_caller(scene: Scene, frames) -> None
         yield from frames[:4]
         raise DatasetError("cam0/data/x.png: truncated PNG")
 
-    fe = StereoFrontend(scene.rig, FrontendConfig())
+    fe = FeatureStream(scene.rig, FrontendConfig())
     seen = []
     with pytest.raises(DatasetError, match="truncated PNG"):
-        for fr, _ in fe.stream(source()):
+        for fr, _ in fe(source()):
             seen.append(fr)
     assert seen == frames[:4]  # every frame before the error arrived
 
 
 def test_closing_the_stream_early_stops_the_workers(scene: Scene, frames) -> None:
-    fe = StereoFrontend(scene.rig, FrontendConfig())
+    fe = FeatureStream(scene.rig, FrontendConfig())
     before = _shm_names()
-    stream = fe.stream(iter(frames * 10))
+    stream = fe(iter(frames * 10))
     next(stream)
     t0 = time.perf_counter()
     stream.close()
@@ -105,8 +106,8 @@ def test_a_worker_that_dies_is_an_error(scene: Scene, frames, idle: bool) -> Non
                 time.sleep(0.05)
             yield fr
 
-    fe = StereoFrontend(scene.rig, FrontendConfig())
-    workers = ExtractionWorkers(fe, 2)
+    fe = FeatureStream(scene.rig, FrontendConfig())
+    workers = ExtractionWorkers(fe.extractor, 2)
     stream = workers.stream(source())
     next(stream)
     os.kill(workers._procs[1].pid, signal.SIGKILL)
@@ -118,24 +119,24 @@ def test_a_worker_that_dies_is_an_error(scene: Scene, frames, idle: bool) -> Non
 def test_the_shared_memory_has_no_name_once_the_workers_run(scene: Scene, frames) -> None:
     """Nothing is left in /dev/shm even if the process is killed mid-run."""
     before = _shm_names()
-    fe = StereoFrontend(scene.rig, FrontendConfig())
-    stream = fe.stream(iter(frames))
+    fe = FeatureStream(scene.rig, FrontendConfig())
+    stream = fe(iter(frames))
     next(stream)
     assert _shm_names() <= before
     stream.close()
 
 
 def test_workers_that_do_not_start_leave_extraction_inline(
-    scene: Scene, frames, monkeypatch, capsys
+    scene: Scene, frames, monkeypatch, caplog
 ) -> None:
     """A Python that is not one (a frozen app) or cannot import eurocslam: a note, then the
     same features extracted in the caller."""
     monkeypatch.setattr(sys, "executable", "/bin/false")
-    fe = StereoFrontend(scene.rig, FrontendConfig())
-    got = list(fe.stream(frames[:3]))
+    fe = FeatureStream(scene.rig, FrontendConfig())
+    got = list(fe(frames[:3]))
     for (_, ff), fr in zip(got, frames[:3], strict=True):
-        _same(ff, fe.extract(fr))
-    assert "did not start" in capsys.readouterr().err
+        _same(ff, fe.extractor.extract(fr))
+    assert "did not start" in caplog.text
 
 
 def _workers_of(pid: int) -> list[int]:
@@ -154,7 +155,7 @@ def _gone(pid: int) -> bool:
 def test_ctrl_c_during_a_run_stops_the_workers(v101_micro: Path, tmp_path: Path) -> None:
     """`eurocslam run` interrupted while its workers extract (SIGINT to its process group, as
     a terminal sends it): exit 130, no traceback from the run or its workers, the MCAP kept as
-    a readable .partial, no worker left behind."""
+    a readable .partial beside the outputs, no worker left behind."""
     out = tmp_path / "out"
     proc = subprocess.Popen(
         [sys.executable, "-m", "eurocslam.cli", "run", str(v101_micro), "-o", str(out)],
@@ -172,7 +173,13 @@ def test_ctrl_c_during_a_run_stops_the_workers(v101_micro: Path, tmp_path: Path)
             time.sleep(0.1)
             workers = _workers_of(proc.pid)
         assert len(workers) == 2, "the extraction workers did not start"
-        time.sleep(1.0)
+        # frames written (an image is 360 kB): a run stopped before its first frame leaves
+        # nothing behind
+        partial = out / ".staging" / "run.mcap.partial"
+        while time.monotonic() < deadline + 30 and proc.poll() is None:
+            if partial.exists() and partial.stat().st_size > 2_000_000:
+                break
+            time.sleep(0.05)
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=30)
     finally:
@@ -207,7 +214,7 @@ def test_a_worker_reports_its_own_peak_memory_not_its_parents() -> None:
 
 
 def test_without_worker_processes_extraction_runs_inline(
-    scene: Scene, frames, monkeypatch, capsys
+    scene: Scene, frames, monkeypatch, caplog
 ) -> None:
     """Where processes cannot start (a locked-down container, no shared memory), the stream
     says so and extracts in the caller, with the same features."""
@@ -216,13 +223,13 @@ def test_without_worker_processes_extraction_runs_inline(
         raise OSError("process creation not permitted")
 
     monkeypatch.setattr(subprocess, "Popen", refuse)
-    fe = StereoFrontend(scene.rig, FrontendConfig())
+    fe = FeatureStream(scene.rig, FrontendConfig())
     before = _shm_names()
-    got = list(fe.stream(frames[:4]))
+    got = list(fe(frames[:4]))
     assert [fr for fr, _ in got] == frames[:4]
     for (_, ff), fr in zip(got, frames[:4], strict=True):
-        _same(ff, fe.extract(fr))
-    assert "extracting in this process" in capsys.readouterr().err
+        _same(ff, fe.extractor.extract(fr))
+    assert "extracting in this process" in caplog.text
     assert _shm_names() <= before
 
 
@@ -243,12 +250,12 @@ assert eurocslam.__file__.startswith({str(copy)!r}), eurocslam.__file__
 from eurocslam.dataset.synth import Scene, SynthSpec
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.frontend import StereoFrontend
+from eurocslam.frontend.stream import FeatureStream
 scene = Scene.build(SynthSpec.tiny(seed=2))
 frames = [StereoFrame(int(scene.cam_t_ns[k]), scene.image(k, 0)[0], scene.image(k, 1)[0])
           for k in range(3)]
-fe = StereoFrontend(scene.rig, FrontendConfig())
-print(len(list(fe.stream(frames))), len(fe.worker_peak_rss_mb))
+fe = FeatureStream(scene.rig, FrontendConfig())
+print(len(list(fe(frames))), len(fe.worker_peak_rss_mb))
 """
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr

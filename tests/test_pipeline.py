@@ -15,8 +15,10 @@ from eurocslam.dataset import open_sequence
 from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import GroundTruth, ImuData, PositionData, SkipReport, StereoFrame
 from eurocslam.eval.evaluate import evaluate
+from eurocslam.frontend.config import FrontendConfig
 from eurocslam.io.trajectory_io import Trajectory
-from eurocslam.pipeline import PipelineState, RunResult, SlamPipeline
+from eurocslam.pipeline.records import PipelineState, RunResult
+from eurocslam.pipeline.slam import SlamPipeline
 
 SYNTH_S = 4.0
 
@@ -167,7 +169,7 @@ def test_imu_gap_bridged_by_vision(synth_seq: Path) -> None:
 @pytest.mark.slow
 def test_visual_only(synth_seq: Path) -> None:
     seq = open_sequence(synth_seq)
-    res = SlamPipeline(seq, RunConfig(), use_imu=False).run()
+    res = SlamPipeline(seq, RunConfig(mode="visual-only")).run()
     assert res.summary.mode == "visual-only"
     assert res.summary.coverage >= 0.95
     assert _ate(res, _gt(seq)) < 0.1
@@ -207,7 +209,9 @@ def test_map_reuse_closes_loops(tmp_path: Path) -> None:
     # both runs reach the noise floor of this short flight (1.34 against 1.39 mm)
     backend = BackendConfig(final_max_landmarks_per_keyframe=100)
     res = SlamPipeline(seq, RunConfig(backend=backend)).run()
-    off = SlamPipeline(seq, RunConfig(backend=backend, frontend={"reuse_map": False})).run()
+    off = SlamPipeline(
+        seq, RunConfig(backend=backend, frontend=FrontendConfig(reuse_map=False))
+    ).run()
     assert res.summary.landmarks_reused > 100, res.summary.lines()
     assert off.summary.landmarks_reused == 0
     assert res.summary.coverage == off.summary.coverage == 1.0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -10,12 +11,12 @@ import numpy as np
 import pytest
 import yaml
 
-from eurocslam.backend.estimator import ImuCheck
+from eurocslam.backend.types import ImuCheck
 from eurocslam.cli import main
 from eurocslam.config import load_config
 from eurocslam.io.ply import read_ply
 from eurocslam.io.trajectory_io import read_euroc_csv, read_tum
-from eurocslam.pipeline import RunSummary
+from eurocslam.pipeline.summary import RunSummary
 
 SLAM_TOPICS = {
     "/tf",
@@ -77,8 +78,9 @@ def test_outputs_written(run_out: Path) -> None:
     assert "final batch: " in (run_out / "summary.txt").read_text()
     ply = read_ply(run_out / "map.ply")
     assert ply["x"].size == summary["landmarks"] > 0
-    # the resolved config reloads to the same values
-    assert load_config(run_out / "config.yaml") == load_config(None)
+    # the resolved config (the mode decided) reloads to the same values
+    resolved = dataclasses.replace(load_config(None), mode="stereo-inertial")
+    assert load_config(run_out / "config.yaml") == resolved
 
 
 def test_mcap_holds_sensor_streams_and_estimate(run_out: Path) -> None:

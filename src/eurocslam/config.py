@@ -5,8 +5,11 @@ with comments. Loading is strict: an unknown key, a wrong type or an out-of-rang
 `ConfigError` naming the file and the dotted key. The resolved configuration (defaults merged
 with the file) is written next to the outputs (`OUT/config.yaml`), so a run can be reproduced.
 
-The `frontend:` section is kept as a plain mapping here and handed to the frontend's own config
-class (`eurocslam.frontend.FrontendConfig`), which validates its keys the same way.
+Every section, the frontend's (`eurocslam.frontend.config.FrontendConfig`) included, goes through
+the one loader here, so a config is checked completely before a run touches anything on disk.
+
+`mode` (top level) is `auto`, `stereo-inertial` or `visual-only`; `auto` is resolved once, against
+the sequence (`resolve_mode`), before a run starts: every stage then reads the concrete mode.
 """
 
 from __future__ import annotations
@@ -20,6 +23,11 @@ from typing import Any
 import yaml
 
 from eurocslam.errors import ConfigError
+from eurocslam.frontend.config import FrontendConfig
+
+STEREO_INERTIAL = "stereo-inertial"
+VISUAL_ONLY = "visual-only"
+MODES = ("auto", STEREO_INERTIAL, VISUAL_ONLY)
 
 
 @dataclass(frozen=True)
@@ -107,12 +115,20 @@ class OutputConfig:
 
 @dataclass(frozen=True)
 class RunConfig:
+    mode: str = "auto"  # auto | stereo-inertial | visual-only (auto: by the sequence's IMU)
     imu: ImuConfig = field(default_factory=ImuConfig)
     init: InitConfig = field(default_factory=InitConfig)
     backend: BackendConfig = field(default_factory=BackendConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
-    frontend: dict[str, Any] = field(default_factory=dict)
+    frontend: FrontendConfig = field(default_factory=FrontendConfig)
+
+    @property
+    def inertial(self) -> bool:
+        """Stereo-inertial (True) or visual-only; the mode must have been resolved."""
+        if self.mode not in (STEREO_INERTIAL, VISUAL_ONLY):
+            raise ConfigError(f"mode {self.mode!r} not resolved (resolve_mode) before the run")
+        return self.mode == STEREO_INERTIAL
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -122,6 +138,7 @@ class RunConfig:
 
 
 _CHOICES = {
+    "mode": MODES,
     "init.mode": ("auto", "static", "dynamic"),
     "backend.smoother": ("fixed_lag", "isam2"),
 }
@@ -157,12 +174,10 @@ def _section(cls: type, data: Any, prefix: str, origin: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(f"{origin}: key '{prefix}' must be a mapping")
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in fields(cls)}
+    names = [f.name for f in fields(cls)]
     for k in data:
         if k not in names:
-            raise ConfigError(
-                f"{origin}: unknown key '{prefix}.{k}' (known: {', '.join(sorted(names))})"
-            )
+            raise ConfigError(f"{origin}: unknown key '{prefix}.{k}' (known: {', '.join(names)})")
     kw = {k: _coerce(v, hints[k], f"{prefix}.{k}", origin) for k, v in data.items()}
     obj = cls(**kw)
     _check_ranges(obj, prefix, origin)
@@ -176,6 +191,8 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
             continue
         if v != v or v < 0:  # NaN or negative
             raise ConfigError(f"{origin}: key '{prefix}.{f.name}' must be >= 0, got {v!r}")
+    if isinstance(obj, FrontendConfig):
+        obj.validate(origin)
     positive = {
         "imu": (
             "gravity",
@@ -229,18 +246,25 @@ def config_from_dict(data: Any, origin: str = "<config>") -> RunConfig:
         "backend": BackendConfig,
         "health": HealthConfig,
         "output": OutputConfig,
+        "frontend": FrontendConfig,
     }
+    known = ["mode", *sections]
     for k in data:
-        if k not in (*sections, "frontend"):
-            raise ConfigError(
-                f"{origin}: unknown section '{k}' (known: {', '.join([*sections, 'frontend'])})"
-            )
+        if k not in known:
+            raise ConfigError(f"{origin}: unknown section '{k}' (known: {', '.join(known)})")
     kw: dict[str, Any] = {k: _section(cls, data.get(k), k, origin) for k, cls in sections.items()}
-    fe = data.get("frontend") or {}
-    if not isinstance(fe, dict):
-        raise ConfigError(f"{origin}: key 'frontend' must be a mapping")
-    kw["frontend"] = dict(fe)
+    if "mode" in data:
+        kw["mode"] = _coerce(data["mode"], str, "mode", origin)
     return RunConfig(**kw)
+
+
+def resolve_mode(cfg: RunConfig, has_imu: bool, where: str = "the sequence") -> RunConfig:
+    """The config with a concrete mode: `auto` becomes stereo-inertial (visual-only has to be
+    asked for). Stereo-inertial without IMU data is an error naming `where`."""
+    mode = STEREO_INERTIAL if cfg.mode == "auto" else cfg.mode
+    if mode == STEREO_INERTIAL and not has_imu:
+        raise ConfigError(f"{where}: no IMU data; run with --no-imu for visual-only")
+    return cfg if mode == cfg.mode else dataclasses.replace(cfg, mode=mode)
 
 
 def load_config(path: Path | str | None = None) -> RunConfig:

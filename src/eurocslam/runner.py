@@ -1,6 +1,6 @@
 """`eurocslam run` as a library call: one pass over a sequence writing every output.
 
-    result = run_slam(source, out_dir, RunOptions(...))
+    result = run_slam(source, out_dir, cfg, RunOptions(...))
 
 Writes into `out_dir`:
 
@@ -12,38 +12,48 @@ Writes into `out_dir`:
 * `config.yaml`: the resolved configuration; `summary.json` / `summary.txt`: the run summary.
 
 Trajectories carry segment ids (`# segment N` lines) when the estimator was reset.
-Whatever happens, the MCAP is left readable (`run.mcap.partial` if the run stopped early).
+
+Everything that can be checked (the configuration and its mode against the sequence, the time
+range) is checked before anything on disk is touched. The outputs are written beside the
+previous run's (`io/staging.py`) and swapped in once complete: a run that fails leaves the
+previous outputs as they were, plus `run.mcap.partial` (readable) if it had written frames.
 """
 
 from __future__ import annotations
 
 import json
-import sys
+import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from eurocslam.config import RunConfig
+from eurocslam.config import RunConfig, resolve_mode
 from eurocslam.dataset.types import SequenceSource
-from eurocslam.errors import EurocSlamError, OutputError
+from eurocslam.errors import OutputError
 from eurocslam.io.ply import write_ply
 from eurocslam.io.sink import Sink
+from eurocslam.io.staging import StagedOutputs
 from eurocslam.io.trajectory_io import Trajectory, write_euroc_csv, write_tum
-from eurocslam.pipeline import FrameOutput, RunResult, SlamPipeline
+from eurocslam.pipeline.records import FrameOutput, RunResult
+from eurocslam.pipeline.slam import SlamPipeline
 from eurocslam.progress import bar
+from eurocslam.run_options import COMPRESSIONS, IMAGE_MODES, RunOptions
 
+logger = logging.getLogger(__name__)
 
-@dataclass(frozen=True)
-class RunOptions:
-    use_imu: bool = True
-    start: float | None = None  # seconds from the sequence start, or absolute ns (>= 1e15)
-    end: float | None = None
-    mcap: bool = True
-    compression: str = "zstd"
-    images: str = "raw"
-    progress: bool | None = None  # None: when stderr is a terminal
+OUTPUT_NAMES = (
+    "run.mcap",
+    "run.mcap.partial",
+    "trajectory_online.tum",
+    "trajectory_online.csv",
+    "trajectory_final.tum",
+    "trajectory_final.csv",
+    "map.ply",
+    "config.yaml",
+    "summary.json",
+    "summary.txt",
+)
 
 
 def _trajectory(t: np.ndarray, T: np.ndarray, seg: np.ndarray, name: str) -> Trajectory:
@@ -76,36 +86,11 @@ def write_outputs(out_dir: Path, result: RunResult, cfg: RunConfig) -> None:
         raise OutputError(f"{out_dir}: cannot write: {e}") from None
 
 
-OUTPUT_NAMES = (
-    "run.mcap",
-    "run.mcap.partial",
-    "trajectory_online.tum",
-    "trajectory_online.csv",
-    "trajectory_final.tum",
-    "trajectory_final.csv",
-    "map.ply",
-    "config.yaml",
-    "summary.json",
-    "summary.txt",
-)
-
-
-def _remove_previous_outputs(out_dir: Path) -> None:
-    """A previous run's outputs in OUT are removed first, so no stale file (e.g. a run.mcap
-    left by an earlier run when this one has --no-mcap) is mistaken for this run's."""
-    old = [out_dir / n for n in OUTPUT_NAMES if (out_dir / n).is_file()]
-    if not old:
-        return
-    print(
-        f"note: replacing the outputs of a previous run in {out_dir} "
-        f"({', '.join(p.name for p in old)})",
-        file=sys.stderr,
-    )
-    for p in old:
-        try:
-            p.unlink()
-        except OSError as e:
-            raise OutputError(f"{p}: cannot replace the previous run's output: {e}") from None
+def _frames_in_range(source: SequenceSource, t0: int | None, t1: int | None) -> int:
+    ft = np.asarray(source.frame_times)
+    lo = t0 if t0 is not None else ft.min(initial=0)
+    hi = t1 if t1 is not None else ft.max(initial=0)
+    return int(np.sum((ft >= lo) & (ft <= hi)))
 
 
 def run_slam(
@@ -117,98 +102,123 @@ def run_slam(
 ) -> RunResult:
     """`extra_sinks` (e.g. the live view's `io.live.LiveSink`) receive every message that goes
     into run.mcap, in the same order, from the pipeline thread; the caller closes them."""
-    from eurocslam.convert import calibration_attachments, resolve_time, sequence_start_ns
-    from eurocslam.io.mcap_writer import McapSink
-    from eurocslam.io.sensor_streams import SensorStreams, StreamOptions
-    from eurocslam.io.sink import TeeSink, ThreadedSink
-    from eurocslam.io.slam_topics import SlamMcapWriter
+    from eurocslam.convert import resolve_time, sequence_start_ns
 
-    cfg = cfg or RunConfig()
     opt = options or RunOptions()
+    cfg = resolve_mode(cfg or RunConfig(), len(source.imu) > 0, source.name)
     out_dir = Path(out_dir)
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise OutputError(f"{out_dir}: cannot create the output folder: {e}") from None
-    if len(source.imu) == 0 and opt.use_imu:
-        raise EurocSlamError(f"{source.name}: no IMU data; run with --no-imu for visual-only")
+    if opt.compression not in COMPRESSIONS:
+        raise OutputError(f"compression {opt.compression!r}: one of {', '.join(COMPRESSIONS)}")
+    if opt.images not in IMAGE_MODES:
+        raise OutputError(f"images {opt.images!r}: one of {', '.join(IMAGE_MODES)}")
     t_ref = sequence_start_ns(source)
     t0, t1 = resolve_time(opt.start, t_ref), resolve_time(opt.end, t_ref)
     if t0 is not None and t1 is not None and t1 < t0:
         raise OutputError(f"--end ({opt.end}) is before --start ({opt.start})")
-    ft = np.asarray(source.frame_times)
-    n_frames = int(
-        np.sum(
-            (ft >= (t0 if t0 is not None else ft.min(initial=0)))
-            & (ft <= (t1 if t1 is not None else ft.max(initial=0)))
-        )
-    )
+    n_frames = _frames_in_range(source, t0, t1)
     if n_frames == 0:
         raise OutputError(f"{source.name}: no stereo frames in the selected time range")
-    _remove_previous_outputs(out_dir)
+    pipeline = SlamPipeline(source, cfg)
 
-    observers = []
-    mcap = sink = writer = None
-    if opt.mcap:
+    staged = StagedOutputs(out_dir, OUTPUT_NAMES)
+    started = False  # a frame has been processed (and written)
+    mcap: _McapOutput | None = None
+    try:
+        mcap = _McapOutput(source, staged.dir, cfg, opt, t0, t1, extra_sinks) if opt.mcap else None
+        if mcap is not None:
+            pipeline.observers.append(mcap.writer)
+        pb = bar(total=n_frames, desc=f"run {source.name}", unit="frame", enabled=opt.progress)
+
+        def progress(out: FrameOutput) -> None:
+            nonlocal started
+            started = True
+            pb.update(1)
+            if pb.n % 10 == 0 or out.reset_reason:
+                fr = out.frontend
+                pb.set_postfix(
+                    state=out.state.value,
+                    tracked=fr.n_tracked if fr else 0,
+                    kf=out.n_keyframes,
+                    resets=out.n_resets,
+                    refresh=False,
+                )
+
+        try:
+            result = pipeline.run(t0, t1, on_progress=progress)
+        finally:
+            pb.close()
+        if mcap is not None:
+            mcap.finish(result)
+        write_outputs(staged.dir, result, cfg)
+    except BaseException as e:
+        partial = mcap.abort() if mcap is not None else None
+        kept = staged.abandon(keep=[partial.name] if partial is not None and started else [])
+        if kept:
+            logger.warning(
+                "eurocslam run: stopped early (%s); what was written so far is in %s (a readable "
+                "MCAP); the previous outputs in %s are unchanged",
+                type(e).__name__,
+                kept[0],
+                out_dir,
+            )
+        raise
+    staged.commit()
+    return result
+
+
+class _McapOutput:
+    """run.mcap: the sensor streams and the SLAM topics through a writer thread."""
+
+    def __init__(
+        self,
+        source: SequenceSource,
+        folder: Path,
+        cfg: RunConfig,
+        opt: RunOptions,
+        t0: int | None,
+        t1: int | None,
+        extra_sinks: Sequence[Sink],
+    ) -> None:
+        from eurocslam.convert import calibration_attachments
+        from eurocslam.io.mcap_writer import McapSink
+        from eurocslam.io.sensor_streams import SensorStreams, StreamOptions
+        from eurocslam.io.sink import TeeSink, ThreadedSink
+        from eurocslam.io.slam_topics import SlamMcapWriter
+
         streams = SensorStreams(
             source, StreamOptions(images=opt.images, t_start_ns=t0, t_end_ns=t1)
         )
-        mcap = McapSink(out_dir / "run.mcap", compression=opt.compression)
-        sink = ThreadedSink(mcap)
-        for name, data in calibration_attachments(source).items():
-            mcap.add_attachment(name, data, "text/yaml", streams.t0_ns)
-        mcap.add_attachment("config.yaml", cfg.to_yaml().encode(), "text/yaml", streams.t0_ns)
-        mcap.add_metadata(
-            "eurocslam",
-            {
-                "source": str(getattr(source, "root", source.name)),
-                "mode": "stereo-inertial" if opt.use_imu else "visual-only",
-            },
-        )
-        dest = TeeSink([sink, *extra_sinks]) if extra_sinks else sink
-        streams.write_static(dest)
-        writer = SlamMcapWriter(dest, streams, source.groundtruth, cfg.output)
-        observers.append(writer)
-
-    pipeline = SlamPipeline(source, cfg, use_imu=opt.use_imu, observers=observers)
-    pb = bar(total=n_frames, desc=f"run {source.name}", unit="frame", enabled=opt.progress)
-    counter = {"n": 0}
-
-    def progress(out: FrameOutput) -> None:
-        counter["n"] += 1
-        pb.update(1)
-        if counter["n"] % 10 == 0 or out.reset_reason:
-            fr = out.frontend
-            pb.set_postfix(
-                state=out.state.value,
-                tracked=fr.n_tracked if fr else 0,
-                kf=pipeline.est.k + 1 if pipeline.est else 0,
-                resets=len(pipeline.summary.resets),
-                refresh=False,
+        self.mcap = McapSink(folder / "run.mcap", compression=opt.compression)
+        self.sink = ThreadedSink(self.mcap)
+        try:
+            for name, data in calibration_attachments(source).items():
+                self.mcap.add_attachment(name, data, "text/yaml", streams.t0_ns)
+            self.mcap.add_attachment(
+                "config.yaml", cfg.to_yaml().encode(), "text/yaml", streams.t0_ns
             )
+            self.mcap.add_metadata(
+                "eurocslam",
+                {"source": str(getattr(source, "root", source.name)), "mode": cfg.mode},
+            )
+            dest = TeeSink([self.sink, *extra_sinks]) if extra_sinks else self.sink
+            streams.write_static(dest)
+            self.writer = SlamMcapWriter(dest, streams, source.groundtruth, cfg.output)
+        except BaseException:
+            self.abort()
+            raise
 
-    try:
-        result = pipeline.run(t0, t1, on_progress=progress)
-        pb.close()
-        if writer is not None and sink is not None:
-            writer.finish(result)
-            sink.close()
-    except BaseException as e:
-        pb.close()
-        if mcap is not None and sink is not None:
-            try:
-                sink.join()
-            except BaseException:
-                sink.abort()
-            try:
-                partial = mcap.abort()
-                print(
-                    f"eurocslam run: stopped early ({type(e).__name__}); what was written so "
-                    f"far is in {partial} (a readable MCAP)",
-                    file=sys.stderr,
-                )
-            except Exception as e2:  # pragma: no cover - disk full etc.
-                print(f"eurocslam run: could not finish {mcap.partial}: {e2}", file=sys.stderr)
-        raise
-    write_outputs(out_dir, result, cfg)
-    return result
+    def finish(self, result: RunResult) -> None:
+        self.writer.finish(result)
+        self.sink.close()
+
+    def abort(self) -> Path | None:
+        """Stop the writer; the partial MCAP (readable), or None if it could not be finished."""
+        try:
+            self.sink.join()
+        except BaseException:
+            self.sink.abort()
+        try:
+            return Path(self.mcap.abort())
+        except Exception as e:  # pragma: no cover - disk full etc.
+            logger.warning("eurocslam run: could not finish %s: %s", self.mcap.partial, e)
+            return None

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eurocslam.backend.estimator import NavEstimate
+from eurocslam.backend.types import NavEstimate
 from eurocslam.config import HealthConfig
 
 
@@ -24,42 +24,52 @@ class Verdict:
 OK = Verdict(True)
 
 
-def check_state(st: NavEstimate, cfg: HealthConfig, use_imu: bool = True) -> Verdict:
-    """NaN, velocity and bias bounds of a smoothed state."""
-    arrays = (st.T_world_body, st.v_world, st.bg, st.ba)
-    if not all(np.all(np.isfinite(a)) for a in arrays):
-        return Verdict(False, "non-finite state")
-    R = st.T_world_body[:3, :3]
-    if abs(np.linalg.det(R) - 1.0) > 1e-3:
-        return Verdict(False, "rotation not orthonormal")
-    speed = float(np.linalg.norm(st.v_world))
-    if use_imu and speed > cfg.max_speed:
-        return Verdict(False, f"velocity {speed:.1f} m/s out of bounds")
-    if use_imu:
+class Health:
+    """The checks of one run's mode: visual-only skips the velocity and bias bounds (nothing
+    measures them) and bridges blind frames for less long."""
+
+    def __init__(self, cfg: HealthConfig, inertial: bool) -> None:
+        self.cfg = cfg
+        self.inertial = inertial
+
+    def state(self, st: NavEstimate) -> Verdict:
+        """NaN, velocity and bias bounds of a smoothed state."""
+        cfg = self.cfg
+        arrays = (st.T_world_body, st.v_world, st.bg, st.ba)
+        if not all(np.all(np.isfinite(a)) for a in arrays):
+            return Verdict(False, "non-finite state")
+        R = st.T_world_body[:3, :3]
+        if abs(np.linalg.det(R) - 1.0) > 1e-3:
+            return Verdict(False, "rotation not orthonormal")
+        if not self.inertial:
+            return OK
+        speed = float(np.linalg.norm(st.v_world))
+        if speed > cfg.max_speed:
+            return Verdict(False, f"velocity {speed:.1f} m/s out of bounds")
         bg = float(np.max(np.abs(st.bg)))
         if bg > cfg.max_gyro_bias:
             return Verdict(False, f"gyro bias {bg:.3f} rad/s out of bounds")
         ba = float(np.max(np.abs(st.ba)))
         if ba > cfg.max_accel_bias:
             return Verdict(False, f"accel bias {ba:.2f} m/s^2 out of bounds")
-    return OK
-
-
-def check_step(T_prev: np.ndarray, T_new: np.ndarray, cfg: HealthConfig) -> Verdict:
-    """A jump between consecutive poses larger than physically plausible."""
-    step = float(np.linalg.norm(T_new[:3, 3] - T_prev[:3, 3]))
-    if not np.isfinite(step) or step > cfg.max_step_m:
-        return Verdict(False, f"pose jumped {step:.2f} m between frames")
-    return OK
-
-
-def check_lost(lost_s: float, imu_ok: bool, use_imu: bool, cfg: HealthConfig) -> Verdict:
-    """How long the pipeline may bridge frames without vision."""
-    if use_imu and imu_ok:
-        if lost_s > cfg.max_lost_s:
-            return Verdict(False, f"no visual tracking for {lost_s:.1f} s")
         return OK
-    if lost_s > cfg.max_lost_s_no_imu:
-        what = "IMU dropout" if use_imu else "visual-only"
-        return Verdict(False, f"no visual tracking for {lost_s:.2f} s ({what})")
-    return OK
+
+    def step(self, T_prev: np.ndarray, T_new: np.ndarray) -> Verdict:
+        """A jump between consecutive poses larger than physically plausible."""
+        step = float(np.linalg.norm(T_new[:3, 3] - T_prev[:3, 3]))
+        if not np.isfinite(step) or step > self.cfg.max_step_m:
+            return Verdict(False, f"pose jumped {step:.2f} m between frames")
+        return OK
+
+    def lost(self, lost_s: float, imu_ok: bool) -> Verdict:
+        """How long the pipeline may bridge frames without vision (`imu_ok`: the IMU has no
+        dropout since the last keyframe)."""
+        cfg = self.cfg
+        if self.inertial and imu_ok:
+            if lost_s > cfg.max_lost_s:
+                return Verdict(False, f"no visual tracking for {lost_s:.1f} s")
+            return OK
+        if lost_s > cfg.max_lost_s_no_imu:
+            what = "IMU dropout" if self.inertial else "visual-only"
+            return Verdict(False, f"no visual tracking for {lost_s:.2f} s ({what})")
+        return OK

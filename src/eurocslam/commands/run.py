@@ -11,6 +11,7 @@ HELP = "stereo-inertial SLAM: OUT/run.mcap (sensor streams + estimate), trajecto
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from eurocslam.commands._args import add_sequence_arguments, finite_float, non_negative_float
+    from eurocslam.run_options import COMPRESSIONS, IMAGE_MODES, RunOptions
 
     add_sequence_arguments(parser)
     parser.add_argument(
@@ -24,7 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-imu",
         action="store_true",
-        help="visual-only (stereo VO + sliding-window BA, no IMU factors)",
+        help="visual-only (stereo VO + sliding-window BA, no IMU factors); the same as "
+        "mode: visual-only in the config",
     )
     parser.add_argument(
         "--config",
@@ -44,14 +46,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--compression",
-        choices=("zstd", "lz4", "none"),
-        default="lz4",
-        help="MCAP chunk compression (default lz4: fast; zstd: smaller)",
+        choices=COMPRESSIONS,
+        default=RunOptions.compression,
+        help=f"MCAP chunk compression (default {RunOptions.compression}; lz4: fast, zstd: smaller)",
     )
     parser.add_argument(
         "--images",
-        choices=("raw", "png", "jpeg"),
-        default="raw",
+        choices=IMAGE_MODES,
+        default=RunOptions.images,
         help="how camera images go into run.mcap (as in convert)",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -107,13 +109,18 @@ def _start_live(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 
 
 def run(args: argparse.Namespace) -> int:
-    from eurocslam.config import load_config
+    import dataclasses
+
+    from eurocslam.config import VISUAL_ONLY, load_config, resolve_mode
     from eurocslam.dataset import open_sequence
     from eurocslam.dataset.bag import source_options
 
     _check_live_args(args)
     cfg = load_config(args.config)
+    if args.no_imu:
+        cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
     source = open_sequence(args.sequence, **source_options(args))
+    cfg = resolve_mode(cfg, len(source.imu) > 0, source.name)
     live_sink = _start_live(args) if args.live else None
     try:
         return _run(args, cfg, source, live_sink)
@@ -123,10 +130,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, cfg, source, live_sink) -> int:  # type: ignore[no-untyped-def]
-    from eurocslam.runner import RunOptions, run_slam
+    from eurocslam.run_options import RunOptions
+    from eurocslam.runner import run_slam
 
     opts = RunOptions(
-        use_imu=not args.no_imu,
         start=args.start,
         end=args.end,
         mcap=not args.no_mcap,

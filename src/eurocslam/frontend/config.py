@@ -1,15 +1,12 @@
 """Frontend / visual-odometry configuration (the `frontend:` section of `configs/euroc.yaml`).
 
-Field names are a stable interface: the pipeline builds `FrontendConfig(**section)` through
-`FrontendConfig.from_dict`, which rejects unknown keys and bad values with a `ConfigError`
-naming the key.
+Loaded with the other sections by `eurocslam.config` (unknown keys and wrong types are errors
+there); `validate` checks the ranges and names the file and key.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
-from typing import Any
 
 from eurocslam.errors import ConfigError
 
@@ -90,41 +87,7 @@ class FrontendConfig:
     prefetch: bool = True
     prefetch_workers: int = 2  # worker processes
 
-    @classmethod
-    def from_dict(cls, data: dict[str, Any] | None, where: str = "frontend") -> FrontendConfig:
-        """Build from a mapping (YAML section). Unknown keys and wrong types are errors."""
-        if data is None:
-            return cls()
-        if not isinstance(data, dict):
-            raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
-        fields = {f.name: f for f in dataclasses.fields(cls)}
-        kwargs: dict[str, Any] = {}
-        for key, value in data.items():
-            if key not in fields:
-                raise ConfigError(f"{where}.{key}: unknown key (known: {', '.join(fields)})")
-            default = getattr(cls, key)
-            try:
-                if isinstance(default, bool):
-                    if not isinstance(value, bool):
-                        raise TypeError
-                    kwargs[key] = value
-                elif isinstance(default, int):
-                    if isinstance(value, bool) or int(value) != value:
-                        raise TypeError
-                    kwargs[key] = int(value)
-                else:
-                    if isinstance(value, bool):
-                        raise TypeError
-                    kwargs[key] = float(value)
-            except (TypeError, ValueError):
-                raise ConfigError(
-                    f"{where}.{key}: expected {type(default).__name__}, got {value!r}"
-                ) from None
-        cfg = cls(**kwargs)
-        cfg.validate(where)
-        return cfg
-
-    def validate(self, where: str = "frontend") -> None:
+    def validate(self, origin: str = "<config>") -> None:
         checks = [
             ("n_features", self.n_features >= 50),
             ("grid_cols", self.grid_cols >= 1),
@@ -134,12 +97,16 @@ class FrontendConfig:
             ("fast_threshold", 1 <= self.fast_threshold <= 255),
             ("min_fast_threshold", 1 <= self.min_fast_threshold <= self.fast_threshold),
             ("min_depth_m", 0 < self.min_depth_m < self.max_depth_m),
+            ("rectify_alpha", 0.0 <= self.rectify_alpha <= 1.0),
             ("stereo_ratio", 0 < self.stereo_ratio <= 1),
             ("track_ratio", 0 < self.track_ratio <= 1),
             ("min_tracked", self.min_tracked >= 6),
             ("subpixel_half_window", self.subpixel_half_window >= 1),
             ("subpixel_search_px", self.subpixel_search_px >= 1),
+            ("prefetch_workers", self.prefetch_workers >= 1),
         ]
         for key, ok in checks:
             if not ok:
-                raise ConfigError(f"{where}.{key}: value {getattr(self, key)!r} out of range")
+                raise ConfigError(
+                    f"{origin}: key 'frontend.{key}' value {getattr(self, key)!r} out of range"
+                )

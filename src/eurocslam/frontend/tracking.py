@@ -1,7 +1,7 @@
 """Temporal tracking: the local map, projection search, pose-only optimisation, PnP recovery.
 
 Poses inside this module are `T_rect0_world` (world -> rectified left camera), the form the
-projection needs; `StereoFrontend` converts to and from `T_world_body`.
+projection needs; `StereoTracker` converts to and from `T_world_body`.
 """
 
 from __future__ import annotations

@@ -60,3 +60,15 @@ class FrontendResult:
     # (N,) pixel standard deviation of each stereo_uv row: the ORB octave scale of its keypoint
     # (1.0 at full resolution, 1.2**k at pyramid level k); multiply by a base sigma for factors
     stereo_sigma: F64 = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass(frozen=True)
+class MapCorrection:
+    """What the backend hands back to the tracker after a keyframe (or a rejected frame): the
+    pose of the last tracked frame, optionally a rigid motion of the whole local map first
+    (`T_new_old`: old world -> corrected world), then landmark positions by id."""
+
+    T_world_body: F64
+    T_new_old: F64 | None = None
+    landmark_ids: NDArray[np.int64] | None = None
+    landmark_xyz: F64 | None = None

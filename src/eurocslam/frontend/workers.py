@@ -1,11 +1,11 @@
 """Feature extraction in worker processes, beside tracking.
 
-`StereoFrontend.stream` runs the extraction of the next frames here while the caller tracks the
-current one. A reader thread takes frames from the source (decoding them: OpenCV releases the
-GIL), copies each frame's images into a slot of shared memory and hands the slot to a worker
-process, round-robin; the worker rectifies, extracts ORB on both images and matches them
-(`StereoFrontend.extract`) and sends the features back over a socket; the caller receives them
-in frame order. Frames that fail the image check (missing, blank, wrong size) skip the workers.
+`FeatureStream` (frontend/stream.py) runs the extraction of the next frames here while the caller
+tracks the current one. A reader thread takes frames from the source (decoding them: OpenCV
+releases the GIL), copies each frame's images into a slot of shared memory and hands the slot to a
+worker process, round-robin; the worker rectifies, extracts ORB on both images and matches them
+(`Extractor.extract`) and sends the features back over a socket; the caller receives them in
+frame order. Frames that fail the image check (missing, blank, wrong size) skip the workers.
 
 A worker is a `python -c` that ignores SIGINT before anything else and runs `_worker_main` on
 the socket FD (subprocess, not multiprocessing: a spawned multiprocessing child imports the
@@ -38,7 +38,6 @@ from dataclasses import dataclass
 from multiprocessing import shared_memory
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -46,10 +45,8 @@ from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import SlamError
 from eurocslam.frontend.config import FrontendConfig
+from eurocslam.frontend.extraction import Extractor, FrameFeatures
 from eurocslam.memory import peak_rss_mb
-
-if TYPE_CHECKING:
-    from eurocslam.frontend.frontend import FrameFeatures, StereoFrontend
 
 SLOTS_PER_WORKER = 3  # frames in flight per worker: one being extracted, two waiting
 _POLL_S = 0.5  # how often a blocked wait checks that the other side is still there
@@ -117,11 +114,9 @@ class _Setup:
 def _worker_main(conn: Connection) -> None:
     """A worker process: `_Setup` in, `_Ready` out; then (slot, t_ns) in, `FrameFeatures` (or
     `_WorkerFailure`) out; None in, `_Done` out ends it."""
-    from eurocslam.frontend.frontend import StereoFrontend
-
     setup: _Setup = conn.recv()
     n_slots, shape = setup.n_slots, setup.shape
-    fe = StereoFrontend(setup.rig, setup.config)
+    extractor = Extractor(setup.rig, setup.config)
     shm = _attach(setup.shm_name)
     images = np.ndarray((n_slots, 2, *shape), np.uint8, buffer=shm.buf)
     try:
@@ -129,7 +124,7 @@ def _worker_main(conn: Connection) -> None:
         while (task := conn.recv()) is not None:
             slot, t_ns = task
             try:
-                ff = fe.extract(StereoFrame(t_ns, images[slot, 0], images[slot, 1]))
+                ff = extractor.extract(StereoFrame(t_ns, images[slot, 0], images[slot, 1]))
             except Exception:
                 conn.send(_WorkerFailure(traceback.format_exc()))
                 return
@@ -180,11 +175,11 @@ def _attach(name: str) -> shared_memory.SharedMemory:
 
 
 class ExtractionWorkers:
-    """`n_workers` worker processes extracting the frames of one stream for `frontend`."""
+    """`n_workers` worker processes extracting the frames of one stream like `extractor`."""
 
-    def __init__(self, frontend: StereoFrontend, n_workers: int) -> None:
-        self.frontend = frontend
-        g = frontend.rectified
+    def __init__(self, extractor: Extractor, n_workers: int) -> None:
+        self.extractor = extractor
+        g = extractor.geometry
         self.shape = (g.height, g.width)
         n_slots = SLOTS_PER_WORKER * max(1, int(n_workers))
         self._shm: shared_memory.SharedMemory | None = shared_memory.SharedMemory(
@@ -200,7 +195,7 @@ class ExtractionWorkers:
         # one socket pair per worker: tasks go out from the reader thread, features come back
         # to the caller (a socket buffers a frame's features, so a worker can work ahead)
         self._conns: list[Connection] = []
-        setup = _Setup(frontend.rig, frontend.config, self._shm.name, n_slots, self.shape)
+        setup = _Setup(extractor.rig, extractor.config, self._shm.name, n_slots, self.shape)
         env = _worker_env()
         try:
             for _ in range(max(1, int(n_workers))):
@@ -300,7 +295,7 @@ class ExtractionWorkers:
 
     # ---- the reader thread -------------------------------------------------------------------
     def _read(self, frames: Iterator[StereoFrame], jobs: queue.Queue[_Job | _End]) -> None:
-        fe = self.frontend
+        ex = self.extractor
         k = 0
         try:
             while not self._stop.is_set():
@@ -310,8 +305,8 @@ class ExtractionWorkers:
                 except StopIteration:
                     break
                 decode_ms = (time.perf_counter() - t0) * 1e3
-                if fe.image_problem(frame) is not None:
-                    job = _Job(frame, decode_ms, local=fe.extract(frame))
+                if ex.frame_problem(frame) is not None:
+                    job = _Job(frame, decode_ms, local=ex.extract(frame))
                 else:
                     slot = self._take_slot()
                     if slot is None:

@@ -31,8 +31,6 @@ Foxglove as two diverging trajectories.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from eurocslam.config import OutputConfig
@@ -41,9 +39,7 @@ from eurocslam.geometry import F64, make_T, quat_wxyz_to_rot, rot_z
 from eurocslam.io import drone, ros2
 from eurocslam.io.sensor_streams import FRAME_GT_BODY, FRAME_GT_WORLD, SensorStreams
 from eurocslam.io.sink import Sink
-
-if TYPE_CHECKING:
-    from eurocslam.pipeline import FrameOutput, RunResult, SlamPipeline
+from eurocslam.pipeline.records import STATE_CODE, FrameOutput, RunResult
 
 WORLD = "world"
 BODY = "body"
@@ -126,7 +122,7 @@ class SlamMcapWriter:
     def _w(self, topic: str, msgtype: str, t: int, msg: bytes) -> None:
         self.sink.write(topic, msgtype, t, msg)
 
-    def on_frame(self, frame: StereoFrame, out: FrameOutput, pipeline: SlamPipeline) -> None:
+    def on_frame(self, frame: StereoFrame, out: FrameOutput) -> None:
         t = int(frame.t_ns)
         self.streams.write_frame(self.sink, frame)
         self._t_last = max(self._t_last, t)
@@ -151,25 +147,22 @@ class SlamMcapWriter:
             self._w("/slam/drone", drone.MSGTYPE, t, drone.drone_markers(BODY, t))
             self._write_groundtruth_overlay(t, T)
         self._w("/slam/state", ros2.STRING, t, ros2.string(out.state.value))
-        n_active = 0
         if out.is_keyframe:
             self._n_kf += 1
-            lm = pipeline.active_landmarks()
-            n_active = len(lm)
-            kt, kT = pipeline.keyframe_path()
-            if len(kt):
-                self._w("/slam/path", ros2.PATH, t, ros2.path(t, WORLD, kt, kT))
+            path, lm = out.keyframe_path, out.landmarks
+            if path is not None and len(path.t_ns):
+                self._w(
+                    "/slam/path", ros2.PATH, t, ros2.path(t, WORLD, path.t_ns, path.T_world_body)
+                )
             every = max(1, self.cfg.landmarks_every_n_keyframes)
-            if self._n_kf % every == 0 and len(lm):
+            if self._n_kf % every == 0 and lm is not None and len(lm):
                 self._w("/slam/landmarks", ros2.POINT_CLOUD2, t, ros2.point_cloud2(t, WORLD, lm))
-        from eurocslam.pipeline import STATE_CODE
-
         stats = [
             STATE_CODE[out.state],
             fr.n_features if fr else 0,
             fr.n_stereo if fr else 0,
             fr.n_tracked if fr else 0,
-            n_active if out.is_keyframe else pipeline.n_active_landmarks(),
+            out.n_active_landmarks,
             out.segment,
             1.0 if out.is_keyframe else 0.0,
             fr.n_reused if fr else 0,

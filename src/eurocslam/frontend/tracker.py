@@ -1,36 +1,28 @@
-"""`StereoFrontend`: rectified stereo ORB features tracked against a local map of landmarks.
+"""Tracking, the second stage of the frontend: `FrameFeatures` in, `FrontendResult` out.
 
-Per frame: image check (missing / blank / saturated -> NO_IMAGE), rectification, grid ORB on
-both images, stereo matching, then tracking: project the local map with the predicted pose
-(the caller's, e.g. from the IMU, else a constant-velocity model), match by descriptor in a
-window, optimise the pose on stereo reprojection errors with outlier rejection (two passes,
-the second at the refined pose), recover with `cv2.solvePnPRansac` when the prediction fails,
-create landmarks at keyframes and cull unreliable ones.
+`StereoTracker.track(features, prediction)` tracks a local map of landmarks: project the map with
+the predicted pose (the caller's, e.g. from the IMU, else a constant-velocity model), match by
+descriptor in a window, optimise the pose on stereo reprojection errors with outlier rejection
+(two passes, the second at the refined pose), recover with `cv2.solvePnPRansac` when the
+prediction fails, create landmarks at keyframes, re-find archived ones (map reuse) and cull
+unreliable ones. Sequential: one tracker per trajectory segment (`restarted`).
 
-Two stages so both cores work: `extract(frame)` (rectify, ORB, stereo matching) is pure and
-thread-safe; `track(features, prediction)` is sequential. `process(frame, prediction)` is both;
-`stream(frames)` decodes the next frames in a reader thread and extracts them in worker
-processes while the caller tracks the current one (`frontend/workers.py`).
+The backend's corrections come back through one method, `apply(MapCorrection)`.
 """
 
 from __future__ import annotations
 
-import sys
-import threading
 import time
-from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from eurocslam.dataset.calib import StereoRig
-from eurocslam.dataset.types import U8, StereoFrame
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.features import Features, OrbExtractor
-from eurocslam.frontend.matching import StereoMatches, match_stereo
+from eurocslam.frontend.extraction import FrameFeatures
+from eurocslam.frontend.features import Features
+from eurocslam.frontend.motion import VelocityModel
 from eurocslam.frontend.stereo import StereoRectifier, triangulate_rect
 from eurocslam.frontend.tracking import (
     LocalMap,
@@ -42,97 +34,28 @@ from eurocslam.frontend.tracking import (
     rigid,
     search_by_projection,
 )
-from eurocslam.frontend.types import FrontendResult, RectifiedStereo, TrackingState
-from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
+from eurocslam.frontend.types import FrontendResult, MapCorrection, RectifiedStereo, TrackingState
+from eurocslam.geometry import F64, inv_T
 
 
-def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:
-    """Why an image cannot be tracked ('missing', 'black', 'saturated', 'blank'), or None."""
-    if img is None:
-        return "missing"
-    if img.ndim != 2 or img.size == 0:
-        return "missing"
-    sub = img[::4, ::4]
-    mean = float(sub.mean())
-    if mean < config.image_dark_mean:
-        return "black"
-    if mean > config.image_saturated_mean:
-        return "saturated"
-    if float(sub.std()) < config.image_min_std:
-        return "blank"
-    return None
-
-
-@dataclass(frozen=True)
-class FrameFeatures:
-    """Output of the extraction stage for one stereo frame."""
-
-    t_ns: int
-    problem: str | None  # None: usable; else why the frame is NO_IMAGE
-    left: Features
-    right: Features
-    stereo: StereoMatches
-    timings_ms: dict[str, float] = field(default_factory=dict)
-
-
-class _VelocityModel:
-    """Constant body-frame twist, scaled by the time since the last pose."""
-
-    def __init__(self, max_v: float, max_w: float) -> None:
-        self.t_ns: int | None = None
-        self.T: F64 | None = None
-        self.v = np.zeros(3)  # m/s, body frame
-        self.w = np.zeros(3)  # rad/s, body frame
-        self.max_v, self.max_w = max_v, max_w
-
-    def update(self, t_ns: int, T_world_body: F64) -> None:
-        if self.T is not None and self.t_ns is not None and t_ns > self.t_ns:
-            dt = (t_ns - self.t_ns) * 1e-9
-            d = inv_T(self.T) @ T_world_body
-            v = d[:3, 3] / dt
-            w = so3_log(d[:3, :3]) / dt
-            if np.linalg.norm(v) <= self.max_v and np.linalg.norm(w) <= self.max_w:
-                self.v, self.w = v, w
-            else:
-                self.v, self.w = np.zeros(3), np.zeros(3)
-        self.t_ns, self.T = t_ns, rigid(T_world_body)
-
-    def shift(self, T_new_old: F64) -> None:
-        """Apply a world correction (the backend moved the last pose)."""
-        if self.T is not None:
-            self.T = rigid(T_new_old @ self.T)
-
-    def reset_motion(self) -> None:
-        self.v, self.w = np.zeros(3), np.zeros(3)
-
-    def predict(self, t_ns: int) -> F64 | None:
-        if self.T is None or self.t_ns is None:
-            return None
-        dt = max(0.0, (t_ns - self.t_ns) * 1e-9)
-        return rigid(self.T @ make_T(so3_exp(self.w * dt), self.v * dt))
-
-
-class StereoFrontend:
-    """Stereo ORB frontend. See the module docstring; `FrontendConfig` holds every parameter."""
+class StereoTracker:
+    """Tracks stereo features against a local map. See the module docstring."""
 
     def __init__(
         self,
-        rig: StereoRig,
+        rectifier: StereoRectifier,
         config: FrontendConfig | None = None,
         T_world_body_init: F64 | None = None,
         first_landmark_id: int = 0,
     ) -> None:
         self.config = config or FrontendConfig()
         self.config.validate()
-        self.rig = rig
-        self._rectifier = StereoRectifier(rig, self.config.rectify_alpha)
-        g = self._rectifier.geometry
-        self._T_body_rect0 = g.T_body_rect0
-        self._local = threading.local()
+        self._rectifier = rectifier
+        self._T_body_rect0 = rectifier.geometry.T_body_rect0
         self.scale = self.config.orb_scale_factor ** np.arange(self.config.orb_levels)
         self.map = LocalMap(first_landmark_id, self.config.archive_max_landmarks)
         self._T_init = None if T_world_body_init is None else np.asarray(T_world_body_init, float)
-        self._motion = _VelocityModel(
+        self._motion = VelocityModel(
             self.config.max_velocity_m_s, self.config.max_angular_velocity_rad_s
         )
         self.frame_index = -1
@@ -141,47 +64,16 @@ class StereoFrontend:
         self._last_kf_t_ns: int | None = None
         self._ref_kf_tracked = 0
         self.last_T_world_body: F64 | None = None
-        self.worker_peak_rss_mb: list[float] = []  # of the last stream's extraction workers
+
+    def restarted(self) -> StereoTracker:
+        """A fresh tracker for a new segment (empty map, no motion) that continues the landmark
+        ids, so that ids stay unique over the run."""
+        return StereoTracker(self._rectifier, self.config, first_landmark_id=self.map.next_id)
 
     # ---- public interface ------------------------------------------------------------------
     @property
     def rectified(self) -> RectifiedStereo:
         return self._rectifier.geometry
-
-    @property
-    def rectifier(self) -> StereoRectifier:
-        return self._rectifier
-
-    def process(self, frame: StereoFrame, T_world_body_pred: F64 | None = None) -> FrontendResult:
-        return self.track(self.extract(frame), T_world_body_pred)
-
-    def stream(self, frames: Iterable[StereoFrame]) -> Iterator[tuple[StereoFrame, FrameFeatures]]:
-        """Yield (frame, features) in order, with the next frames read and decoded by a reader
-        thread and extracted (rectification, ORB, stereo matching) by `prefetch_workers` worker
-        processes while the caller tracks the current one (`frontend.workers`).
-        `prefetch=False` runs everything inline."""
-        workers = None
-        if self.config.prefetch:
-            try:
-                from eurocslam.frontend.workers import ExtractionWorkers
-
-                workers = ExtractionWorkers(self, self.config.prefetch_workers)
-            # no shared memory or no processes here (a locked-down container, a platform
-            # without pass_fds), or the workers' Python cannot import eurocslam
-            except (OSError, ValueError, ImportError, AssertionError) as e:
-                print(
-                    f"note: feature extraction workers could not start ({e}); "
-                    "extracting in this process (slower; frontend.prefetch: false silences this)",
-                    file=sys.stderr,
-                )
-        if workers is None:
-            for fr in frames:
-                yield fr, self.extract(fr)
-            return
-        try:
-            yield from workers.stream(frames)
-        finally:
-            self.worker_peak_rss_mb = workers.peak_rss_mb
 
     def predict(self, t_ns: int) -> F64 | None:
         """Constant-velocity prediction of T_world_body at t_ns (None before the first pose)."""
@@ -200,76 +92,32 @@ class StereoFrontend:
         out[ok] = self.map.xyz[rows[ok]]
         return out
 
-    def correct(
-        self,
-        T_world_body: F64,
-        landmarks: dict[int, F64] | tuple[NDArray[np.int64], F64] | None = None,
-    ) -> None:
-        """Adopt the backend's optimised pose of the *last processed frame* and landmark
-        positions (dict id -> xyz, or (ids, (N, 3))). Unknown ids are ignored."""
-        T_new = rigid(np.asarray(T_world_body, dtype=np.float64))
-        if self.last_T_world_body is not None:
-            self._motion.shift(T_new @ inv_T(self.last_T_world_body))
-        self.last_T_world_body = T_new.copy()
-        if landmarks is None:
+    def apply(self, correction: MapCorrection) -> None:
+        """Adopt the backend's correction of the *last processed frame*: its pose, then a rigid
+        motion of the whole map (`T_new_old`, if any), then the landmark positions given
+        (unknown ids and non-finite positions are ignored)."""
+        c = correction
+        self._adopt_pose(c.T_world_body)
+        if c.T_new_old is not None and len(self.map):
+            D = c.T_new_old
+            moved = self.map.xyz @ D[:3, :3].T + D[:3, 3]
+            ok = np.all(np.isfinite(moved), axis=1)
+            self.map.xyz[ok] = moved[ok]
+        if c.landmark_ids is None or c.landmark_xyz is None:
             return
-        if isinstance(landmarks, dict):
-            if not landmarks:
-                return
-            ids = np.fromiter(landmarks.keys(), dtype=np.int64, count=len(landmarks))
-            xyz = np.array([landmarks[int(i)] for i in ids], dtype=np.float64).reshape(-1, 3)
-        else:
-            ids = np.asarray(landmarks[0], dtype=np.int64).reshape(-1)
-            xyz = np.asarray(landmarks[1], dtype=np.float64).reshape(-1, 3)
+        ids = np.asarray(c.landmark_ids, dtype=np.int64).reshape(-1)
+        xyz = np.asarray(c.landmark_xyz, dtype=np.float64).reshape(-1, 3)
         rows = self.map.index_of(ids)
         ok = (rows >= 0) & np.all(np.isfinite(xyz), axis=1)
         self.map.xyz[rows[ok]] = xyz[ok]
 
-    # ---- stage 1: extraction (thread-safe) ---------------------------------------------------
-    def _extractor(self) -> OrbExtractor:
-        ex = getattr(self._local, "orb", None)
-        if ex is None:
-            g = self.rectified
-            ex = OrbExtractor(self.config, g.width, g.height)
-            self._local.orb = ex
-        return ex
+    def _adopt_pose(self, T_world_body: F64) -> None:
+        T_new = rigid(np.asarray(T_world_body, dtype=np.float64))
+        if self.last_T_world_body is not None:
+            self._motion.shift(T_new @ inv_T(self.last_T_world_body))
+        self.last_T_world_body = T_new.copy()
 
-    def extract(self, frame: StereoFrame) -> FrameFeatures:
-        """Rectify, ORB on both images, stereo matching. Thread-safe."""
-        problem = self.image_problem(frame)
-        if problem is not None:
-            e = Features.empty()
-            return FrameFeatures(frame.t_ns, problem, e, e, StereoMatches(*_no_stereo(0)), {})
-        t0 = time.perf_counter()
-        left = self._rectifier.rectify_left(frame.left)
-        right = self._rectifier.rectify_right(frame.right)
-        t1 = time.perf_counter()
-        ex = self._extractor()
-        fl = ex.extract(left)
-        fr = ex.extract(right)
-        t2 = time.perf_counter()
-        sm = match_stereo(fl, fr, left, right, self.scale, self.config, self.rectified)
-        t3 = time.perf_counter()
-        timings = {
-            "rectify": (t1 - t0) * 1e3,
-            "orb": (t2 - t1) * 1e3,
-            "stereo_matching": (t3 - t2) * 1e3,
-        }
-        return FrameFeatures(frame.t_ns, None, fl, fr, sm, timings)
-
-    def image_problem(self, frame: StereoFrame) -> str | None:
-        """Why a frame's images cannot be tracked (`image_problem` of either, or 'size'), or
-        None."""
-        c = self.config
-        problem = image_problem(frame.left, c) or image_problem(frame.right, c)
-        g = self.rectified
-        if problem is None and (
-            frame.left.shape != (g.height, g.width) or frame.right.shape != (g.height, g.width)
-        ):
-            problem = "size"
-        return problem
-
-    # ---- stage 2: tracking (sequential) -----------------------------------------------------
+    # ---- tracking ---------------------------------------------------------------------------
     def track(self, ff: FrameFeatures, T_world_body_pred: F64 | None = None) -> FrontendResult:
         self.frame_index += 1
         timings = dict(ff.timings_ms)
@@ -651,7 +499,3 @@ class StereoFrontend:
                 else self.scale[np.clip(ff.left.octave[obs_kps], 0, self.scale.size - 1)]
             ),
         )
-
-
-def _no_stereo(n: int) -> tuple[F64, F64, NDArray[np.intp]]:
-    return np.full(n, np.nan), np.full(n, np.nan), np.full(n, -1, dtype=np.intp)

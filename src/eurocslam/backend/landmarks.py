@@ -1,0 +1,73 @@
+"""Landmark keys of one segment: frontend ids <-> GTSAM keys, positions, the smoother window.
+
+A landmark gets a key L(i) when the smoother first takes it. When the fixed-lag smoother has
+marginalised it and it is seen again, it gets a fresh key (the smoother must not see a key
+again), while the segment's global graph keeps using its first key (`gkey`): so the final batch
+has one variable per landmark, and a landmark re-found after a while (map reuse) ties the
+keyframes then to those now.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from eurocslam.geometry import F64
+
+
+def landmark_indices(keys: Iterable[int]) -> NDArray[np.int64]:
+    """The indices of the landmark symbols L(i) among gtsam keys, in the keys' order."""
+    k = np.asarray(keys, dtype=np.uint64)
+    is_l = (k >> np.uint64(56)) == np.uint64(ord("l"))
+    return (k[is_l] & np.uint64((1 << 56) - 1)).astype(np.int64)
+
+
+class LandmarkKeys:
+    """Per landmark key index: latest position, frontend id, whether it is in the smoother
+    window, its key in the global graph, and (per global key) its observations."""
+
+    def __init__(self) -> None:
+        self.key_of: dict[int, int] = {}  # frontend landmark id -> current key index
+        self.n = 0  # key indices used
+        self.pos = np.zeros((1024, 3))
+        self.fid = np.zeros(1024, np.int64)
+        self.active = np.zeros(1024, bool)
+        self.gkey = np.zeros(1024, np.int64)  # the landmark's key in the global graph
+        self.nobs = np.zeros(1024, np.int64)  # per global key: observations in the segment
+
+    def is_active(self, fid: int) -> bool:
+        k = self.key_of.get(fid)
+        return k is not None and bool(self.active[k])
+
+    def new_key(self, fid: int) -> int:
+        """A fresh key index for frontend landmark `fid` (active); its global key is its first
+        key's."""
+        key_i = self.n
+        self.n += 1
+        if key_i >= self.pos.shape[0]:
+            n = 2 * self.pos.shape[0]
+            self.pos = np.resize(self.pos, (n, 3))
+            self.fid = np.resize(self.fid, n)
+            self.gkey = np.resize(self.gkey, n)
+            self.nobs = np.pad(self.nobs, (0, n - self.nobs.size))  # zeros
+            self.active = np.pad(self.active, (0, n - self.active.size))  # False
+        old = self.key_of.get(fid)
+        self.gkey[key_i] = key_i if old is None else self.gkey[old]
+        self.key_of[fid] = key_i
+        self.fid[key_i] = fid
+        self.active[key_i] = True
+        return key_i
+
+    def set_window(self, idx: NDArray[np.int64], pts: F64) -> None:
+        """The smoother's estimate: exactly the key indices `idx` are in its window, at `pts`."""
+        self.active[: self.n] = False
+        if idx.size:
+            self.pos[idx] = pts
+            self.active[idx] = True
+
+    def in_window(self) -> tuple[NDArray[np.int64], F64]:
+        """Frontend ids and world positions of the landmarks in the smoother window."""
+        act = np.nonzero(self.active[: self.n])[0]
+        return self.fid[act].copy(), self.pos[act].copy()

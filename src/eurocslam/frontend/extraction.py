@@ -1,0 +1,115 @@
+"""Extraction, the first stage of the frontend: one `StereoFrame` in, one `FrameFeatures` out.
+
+Per frame: the image check (missing / blank / saturated / wrong size: the frame is NO_IMAGE for
+tracking), rectification, grid-bucketed ORB on both images, stereo matching. Stateless and
+thread-safe (one ORB detector per thread), so `frontend/workers.py` can run it in other
+processes while the tracking stage works on the previous frame.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from eurocslam.dataset.calib import StereoRig
+from eurocslam.dataset.types import U8, StereoFrame
+from eurocslam.frontend.config import FrontendConfig
+from eurocslam.frontend.features import Features, OrbExtractor
+from eurocslam.frontend.matching import StereoMatches, match_stereo
+from eurocslam.frontend.stereo import StereoRectifier
+from eurocslam.frontend.types import RectifiedStereo
+from eurocslam.geometry import F64
+
+
+def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:
+    """Why an image cannot be tracked ('missing', 'black', 'saturated', 'blank'), or None."""
+    if img is None:
+        return "missing"
+    if img.ndim != 2 or img.size == 0:
+        return "missing"
+    sub = img[::4, ::4]
+    mean = float(sub.mean())
+    if mean < config.image_dark_mean:
+        return "black"
+    if mean > config.image_saturated_mean:
+        return "saturated"
+    if float(sub.std()) < config.image_min_std:
+        return "blank"
+    return None
+
+
+@dataclass(frozen=True)
+class FrameFeatures:
+    """Output of the extraction stage for one stereo frame (rectified cam0 pixels)."""
+
+    t_ns: int
+    problem: str | None  # None: usable; else why the frame is NO_IMAGE
+    left: Features
+    right: Features
+    stereo: StereoMatches
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+def _no_stereo() -> StereoMatches:
+    return StereoMatches(np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.intp))
+
+
+class Extractor:
+    """Rectification, ORB on both images and stereo matching for one rig and configuration."""
+
+    def __init__(self, rig: StereoRig, config: FrontendConfig) -> None:
+        self.rig = rig
+        self.config = config
+        self.rectifier = StereoRectifier(rig, config.rectify_alpha)
+        self.scale: F64 = config.orb_scale_factor ** np.arange(config.orb_levels)
+        self._local = threading.local()
+
+    @property
+    def geometry(self) -> RectifiedStereo:
+        return self.rectifier.geometry
+
+    def _orb(self) -> OrbExtractor:
+        ex = getattr(self._local, "orb", None)
+        if ex is None:
+            g = self.geometry
+            ex = OrbExtractor(self.config, g.width, g.height)
+            self._local.orb = ex
+        return ex
+
+    def frame_problem(self, frame: StereoFrame) -> str | None:
+        """Why a frame's images cannot be tracked (`image_problem` of either, or 'size'), or
+        None."""
+        c = self.config
+        problem = image_problem(frame.left, c) or image_problem(frame.right, c)
+        g = self.geometry
+        if problem is None and (
+            frame.left.shape != (g.height, g.width) or frame.right.shape != (g.height, g.width)
+        ):
+            problem = "size"
+        return problem
+
+    def extract(self, frame: StereoFrame) -> FrameFeatures:
+        """Rectify, ORB on both images, stereo matching."""
+        problem = self.frame_problem(frame)
+        if problem is not None:
+            e = Features.empty()
+            return FrameFeatures(frame.t_ns, problem, e, e, _no_stereo(), {})
+        t0 = time.perf_counter()
+        left = self.rectifier.rectify_left(frame.left)
+        right = self.rectifier.rectify_right(frame.right)
+        t1 = time.perf_counter()
+        orb = self._orb()
+        fl = orb.extract(left)
+        fr = orb.extract(right)
+        t2 = time.perf_counter()
+        sm = match_stereo(fl, fr, left, right, self.scale, self.config, self.geometry)
+        t3 = time.perf_counter()
+        timings = {
+            "rectify": (t1 - t0) * 1e3,
+            "orb": (t2 - t1) * 1e3,
+            "stereo_matching": (t3 - t2) * 1e3,
+        }
+        return FrameFeatures(frame.t_ns, None, fl, fr, sm, timings)

@@ -1,0 +1,73 @@
+"""What the pipeline hands out: one `FrameOutput` per frame to its observers (the MCAP writer,
+the live view), one `RunResult` at the end."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from eurocslam.backend.types import NavEstimate
+from eurocslam.dataset.types import StereoFrame
+from eurocslam.frontend.types import FrontendResult
+from eurocslam.geometry import F64
+
+if TYPE_CHECKING:
+    from eurocslam.pipeline.summary import RunSummary
+
+
+class PipelineState(str, Enum):
+    INIT = "INIT"
+    TRACKING = "TRACKING"
+    LOST = "LOST"
+
+
+STATE_CODE = {PipelineState.INIT: 0, PipelineState.TRACKING: 1, PipelineState.LOST: 2}
+
+
+@dataclass(frozen=True)
+class KeyframePath:
+    """The current segment's keyframes: times and latest smoothed poses."""
+
+    t_ns: NDArray[np.int64]  # (K,)
+    T_world_body: F64  # (K, 4, 4)
+
+
+@dataclass(frozen=True)
+class FrameOutput:
+    """What the pipeline produced for one stereo frame: everything a sink needs."""
+
+    t_ns: int
+    state: PipelineState
+    T_world_body: F64 | None  # online pose (None: no estimate for this frame)
+    segment: int
+    is_keyframe: bool
+    frontend: FrontendResult | None
+    nav: NavEstimate | None  # latest backend state (velocity, biases)
+    reset_reason: str = ""  # non-empty when this frame ended a segment
+    n_keyframes: int = 0  # keyframes of the current segment so far
+    n_resets: int = 0  # resets of the run so far
+    n_active_landmarks: int = 0  # landmarks the smoother holds after this frame
+    # at keyframes: the segment's keyframe path and the smoother's landmarks (world, (N, 3))
+    keyframe_path: KeyframePath | None = None
+    landmarks: F64 | None = None
+
+
+class FrameObserver(Protocol):
+    def on_frame(self, frame: StereoFrame, out: FrameOutput) -> None: ...
+
+
+@dataclass
+class RunResult:
+    online_t_ns: NDArray[np.int64]
+    online_T: F64  # (N, 4, 4)
+    online_segment: NDArray[np.int64]
+    final_t_ns: NDArray[np.int64]
+    final_T: F64
+    final_segment: NDArray[np.int64]
+    landmarks: F64  # (M, 3) batch-optimised map
+    landmark_segment: NDArray[np.int64]
+    summary: RunSummary

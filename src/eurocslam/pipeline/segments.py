@@ -1,0 +1,85 @@
+"""Trajectory segments: the frames of each segment as the pipeline tracked them, and, once the
+segment's final batch has run, the final trajectory and map of the run.
+
+A segment is the span between two resets; each has its own world frame. A frame's final pose is
+its IMU-bridged pose where the estimator gave one, else its online pose moved with the final
+correction of the keyframe it hangs from.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from eurocslam.backend.types import SegmentSolution
+from eurocslam.geometry import F64, inv_T
+
+
+@dataclass
+class FrameRecord:
+    t_ns: int
+    T_chain: F64  # pose in the segment's frame used to attach it to its reference keyframe
+    ref_kf: int  # keyframe index (in the segment) this frame hangs from; -1: the first one
+
+
+@dataclass
+class Segment:
+    index: int
+    records: list[FrameRecord] = field(default_factory=list)
+    kf_T_chain: dict[int, F64] = field(default_factory=dict)
+    solution: SegmentSolution | None = None
+
+    def frame_refs(self) -> list[tuple[int, int]]:
+        """(t_ns, reference keyframe) of every frame, as the estimator's `finish` takes them."""
+        return [(r.t_ns, r.ref_kf) for r in self.records]
+
+    def final_poses(self) -> list[F64]:
+        """Every frame's final pose (its online chain pose before the final batch)."""
+        sol = self.solution
+        out = []
+        for i, rec in enumerate(self.records):
+            ref = rec.ref_kf if rec.ref_kf >= 0 else 0
+            if sol is not None and i in sol.frames:
+                T = sol.frames[i]
+            elif sol is not None and ref in sol.keyframes and ref in self.kf_T_chain:
+                T = sol.keyframes[ref] @ inv_T(self.kf_T_chain[ref]) @ rec.T_chain
+            else:
+                T = rec.T_chain
+            out.append(T)
+        return out
+
+    @property
+    def landmarks(self) -> F64:
+        return self.solution.landmarks if self.solution is not None else np.zeros((0, 3))
+
+
+@dataclass(frozen=True)
+class FinalTrajectory:
+    t_ns: np.ndarray
+    T: F64  # (N, 4, 4)
+    segment: np.ndarray
+    landmarks: F64  # (M, 3)
+    landmark_segment: np.ndarray
+
+
+def assemble(segments: list[Segment]) -> FinalTrajectory:
+    """The final trajectory of all segments in time order, and the map."""
+    ft, fT, fs, lm, ls = [], [], [], [], []
+    for seg in segments:
+        if not seg.records:
+            continue
+        for rec, T in zip(seg.records, seg.final_poses(), strict=True):
+            ft.append(rec.t_ns)
+            fT.append(T)
+            fs.append(seg.index)
+        lm.append(seg.landmarks)
+        ls.append(np.full(len(seg.landmarks), seg.index, np.int64))
+    order = np.argsort(np.array(ft, dtype=np.int64), kind="stable")
+    return FinalTrajectory(
+        np.array(ft, dtype=np.int64)[order],
+        np.array(fT).reshape(-1, 4, 4)[order],
+        np.array(fs, dtype=np.int64)[order],
+        np.concatenate(lm) if lm else np.zeros((0, 3)),
+        np.concatenate(ls) if ls else np.zeros(0, np.int64),
+    )

@@ -1,0 +1,156 @@
+"""The run summary: counts, states, resets, the IMU check, timings per stage, speed, memory; as
+text lines (`summary.txt`, the console) and as JSON (`summary.json`)."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from eurocslam.backend.types import ImuCheck
+
+
+def cpu_seconds() -> float:
+    """CPU time of this process and of its finished children (the frontend's extraction
+    workers, once the stream has ended)."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not on Windows
+        return time.process_time()
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + ru.ru_utime + ru.ru_stime
+
+
+def _finite(x: float) -> float | None:
+    """Rounded for JSON; NaN (not measured) as null."""
+    return None if math.isnan(x) else round(x, 3)
+
+
+@dataclass
+class RunSummary:
+    sequence: str = ""
+    mode: str = "stereo-inertial"
+    frames: int = 0
+    frames_with_pose: int = 0
+    keyframes: int = 0
+    landmarks: int = 0
+    landmarks_reused: int = 0  # archived landmarks re-found (map reuse: loop closures)
+    segments: int = 0
+    resets: list[tuple[int, str]] = field(default_factory=list)
+    init_modes: list[str] = field(default_factory=list)
+    imu_checks: list[ImuCheck] = field(default_factory=list)  # final batch, per segment
+    state_frames: dict[str, int] = field(default_factory=dict)
+    timings_ms: dict[str, list[float]] = field(default_factory=dict)
+    wall_s: float = 0.0
+    cpu_s: float = 0.0  # CPU time of the process (every thread) and its workers
+    peak_rss_mb: float = math.nan  # this process's peak resident memory
+    worker_peak_rss_mb: list[float] = field(default_factory=list)  # extraction workers'
+    duration_s: float = 0.0
+
+    def add_time(self, stage: str, ms: float) -> None:
+        self.timings_ms.setdefault(stage, []).append(ms)
+
+    @property
+    def coverage(self) -> float:
+        return self.frames_with_pose / self.frames if self.frames else 0.0
+
+    @property
+    def realtime_factor(self) -> float:
+        return self.duration_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    def timing_table(self) -> list[tuple[str, int, float, float, float]]:
+        """(stage, calls, median ms, total s, share of wall time)."""
+        rows = []
+        for stage, v in self.timings_ms.items():
+            a = np.asarray(v)
+            rows.append(
+                (
+                    stage,
+                    a.size,
+                    float(np.median(a)),
+                    float(a.sum()) / 1e3,
+                    float(a.sum()) / 1e3 / self.wall_s if self.wall_s else 0.0,
+                )
+            )
+        return rows
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "sequence": self.sequence,
+            "mode": self.mode,
+            "frames": self.frames,
+            "frames_with_pose": self.frames_with_pose,
+            "coverage": round(self.coverage, 4),
+            "keyframes": self.keyframes,
+            "landmarks": self.landmarks,
+            "landmarks_reused": self.landmarks_reused,
+            "segments": self.segments,
+            "resets": [{"t_ns": t, "reason": r} for t, r in self.resets],
+            "init_modes": self.init_modes,
+            "imu_check": [
+                {
+                    "ratio": _finite(c.ratio),
+                    "accel_scale": round(c.accel_scale, 3),
+                    "ratio_after": _finite(c.ratio_after),
+                }
+                for c in self.imu_checks
+            ],
+            "state_frames": self.state_frames,
+            "duration_s": round(self.duration_s, 3),
+            "wall_s": round(self.wall_s, 3),
+            "cpu_s": round(self.cpu_s, 3),
+            "peak_rss_mb": _finite(self.peak_rss_mb),
+            "worker_peak_rss_mb": [_finite(m) for m in self.worker_peak_rss_mb],
+            "realtime_factor": round(self.realtime_factor, 3),
+            "timings": {
+                s: {
+                    "calls": n,
+                    "median_ms": round(m, 3),
+                    "total_s": round(t, 3),
+                    "share": round(sh, 4),
+                }
+                for s, n, m, t, sh in self.timing_table()
+            },
+        }
+
+    def lines(self) -> list[str]:
+        out = [
+            f"{self.sequence}: {self.mode}, {self.frames} frames, pose for "
+            f"{self.frames_with_pose} ({100 * self.coverage:.1f} %), {self.keyframes} keyframes, "
+            f"{self.landmarks} landmarks ({self.landmarks_reused} re-found), "
+            f"{self.segments} segment(s), {len(self.resets)} reset(s)",
+            f"init: {', '.join(self.init_modes) or 'none'}; frames per state: "
+            + ", ".join(f"{k} {v}" for k, v in sorted(self.state_frames.items())),
+            f"{self.duration_s:.1f} s of data in {self.wall_s:.1f} s wall "
+            f"(real-time factor {self.realtime_factor:.2f}), {self.cpu_s:.1f} s CPU",
+            f"peak memory {self.peak_rss_mb:.0f} MB"
+            + (
+                f" + {len(self.worker_peak_rss_mb)} extraction workers "
+                + " + ".join(f"{m:.0f}" for m in self.worker_peak_rss_mb)
+                + " MB"
+                if self.worker_peak_rss_mb
+                else ""
+            ),
+        ]
+        for c in self.imu_checks:
+            if math.isnan(c.ratio):
+                out.append("final batch: too few IMU or stereo factors to check the IMU")
+                continue
+            out.append(
+                f"final batch: IMU residuals {c.ratio:.2f}x the stereo residuals (chi-square per "
+                "redundancy)"
+                + (
+                    f"; accelerometer covariances scaled by {c.accel_scale:.1f}: "
+                    f"{c.ratio_after:.2f}x"
+                    if c.accel_scale != 1.0
+                    else ""
+                )
+            )
+        for t, r in self.resets:
+            out.append(f"  reset at t={t} ns: {r}")
+        out.append(f"  {'stage':<18}{'calls':>7}{'median ms':>11}{'total s':>9}{'share':>8}")
+        for s, n, m, tot, sh in self.timing_table():
+            out.append(f"  {s:<18}{n:>7}{m:>11.2f}{tot:>9.2f}{100 * sh:>7.1f}%")
+        return out

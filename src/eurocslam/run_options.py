@@ -1,0 +1,19 @@
+"""Options of one `eurocslam run` that are not SLAM configuration: what to process and how to
+write it. Light on imports, so the command line can show its defaults without loading GTSAM."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+COMPRESSIONS = ("zstd", "lz4", "none")
+IMAGE_MODES = ("raw", "png", "jpeg")
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    start: float | None = None  # seconds from the sequence start, or absolute ns (>= 1e15)
+    end: float | None = None
+    mcap: bool = True
+    compression: str = "lz4"  # MCAP chunk compression, one of COMPRESSIONS
+    images: str = "raw"  # how images go into the MCAP, one of IMAGE_MODES
+    progress: bool | None = None  # None: when stderr is a terminal
