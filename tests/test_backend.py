@@ -198,7 +198,8 @@ def _run_sim(
 
 # Every simulated observation enters the smoother (no per-keyframe cap): these tests check the
 # smoother itself. The cap (`max_landmarks_per_keyframe`, 100) trades accuracy for speed; it is
-# measured on rendered replicas (benchmarks/RESULTS.md); its image-wide selection is tested below.
+# measured on rendered replicas (benchmarks/RESULTS.md, "The final batch"), and its image-wide
+# selection is tested below.
 SIM_BACKEND = BackendConfig(lag_s=3.0, max_landmarks_per_keyframe=10_000)
 
 

@@ -72,9 +72,9 @@ def _vo_ate(seq_path: Path) -> tuple[float, object, float]:
 def test_visual_odometry_ate_on_a_rendered_flight(tiny_sequence: Path) -> None:
     """`run --no-imu` on the 2 s built-in flight (41 frames, 1.2 m of motion): SE(3) ATE.
 
-    Bound 2 cm: measured 4.1 mm here (full-length semi-real replicas: README); a fivefold
-    margin for platform and OpenCV-version differences, still five times tighter than the
-    0.10 m accuracy target.
+    Bound 2 cm: measured 4.1 mm here (full-length semi-real replicas: benchmarks/RESULTS.md);
+    a fivefold margin for platform and OpenCV-version differences, still five times tighter than
+    the 0.10 m accuracy target.
     """
     rmse, s, path = _vo_ate(tiny_sequence)
     assert s.mode == "visual-only"
