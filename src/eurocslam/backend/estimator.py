@@ -35,11 +35,10 @@ from gtsam.symbol_shorthand import B, L, V, X
 
 from eurocslam.backend.initializer import InitialState
 from eurocslam.backend.preintegration import bias, integrate, make_params
+from eurocslam.camera import RectifiedStereo, bucket_select
 from eurocslam.config import RunConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
-from eurocslam.frontend.features import bucket_select
-from eurocslam.frontend.types import RectifiedStereo
 from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
 
 

@@ -26,12 +26,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from eurocslam.camera import RectifiedStereo, triangulate_rect
 from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import U8, StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.features import Features, OrbExtractor
 from eurocslam.frontend.matching import StereoMatches, match_stereo
-from eurocslam.frontend.stereo import StereoRectifier, triangulate_rect
+from eurocslam.frontend.stereo import StereoRectifier
 from eurocslam.frontend.tracking import (
     LocalMap,
     body_T_from_rect,
@@ -42,7 +43,7 @@ from eurocslam.frontend.tracking import (
     rigid,
     search_by_projection,
 )
-from eurocslam.frontend.types import FrontendResult, RectifiedStereo, TrackingState
+from eurocslam.frontend.types import FrontendResult, TrackingState
 from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
 
 
