@@ -23,7 +23,7 @@ pytest.importorskip("websockets")
 
 from eurocslam.dataset.calib import default_rig
 from eurocslam.errors import DatasetError, OutputError
-from eurocslam.io import drone, ros2
+from eurocslam.io import drone, ros2, ros2_calib
 from eurocslam.io.live import (
     LiveSink,
     PacingClock,
@@ -64,8 +64,8 @@ def _T_world_body(k: int) -> np.ndarray:
 def _write_run_like(sink, n: int = N_FRAMES) -> None:  # type: ignore[no-untyped-def]
     """The main topics of a run, built with the project's message builders, in log-time order."""
     rig = default_rig()
-    info0, _ = ros2.stereo_camera_infos(rig)
-    gcov, acov = ros2.imu_covariances(rig.imu)
+    info0, _ = ros2_calib.stereo_camera_infos(rig)
+    gcov, acov = ros2_calib.imu_covariances(rig.imu)
     sink.write(
         "/tf_static",
         ros2.TF_MESSAGE,
@@ -86,7 +86,9 @@ def _write_run_like(sink, n: int = N_FRAMES) -> None:  # type: ignore[no-untyped
             "/tf", ros2.TF_MESSAGE, t, ros2.tf_message([ros2.Transform(t, "world", "body", T)])
         )
         sink.write("/cam0/image_raw", ros2.IMAGE, t, ros2.image(t, "cam0", _img(k)))
-        sink.write("/cam0/camera_info", ros2.CAMERA_INFO, t, ros2.camera_info(t, "cam0", info0))
+        sink.write(
+            "/cam0/camera_info", ros2.CAMERA_INFO, t, ros2_calib.camera_info(t, "cam0", info0)
+        )
         sink.write("/slam/pose", ros2.POSE_STAMPED, t, ros2.pose_stamped(t, "world", T))
         sink.write(
             "/slam/path",
