@@ -118,6 +118,7 @@ def run_slam(
     """`extra_sinks` (e.g. the live view's `io.live.LiveSink`) receive every message that goes
     into run.mcap, in the same order, from the pipeline thread; the caller closes them."""
     from eurocslam.convert import calibration_attachments, resolve_time, sequence_start_ns
+    from eurocslam.frontend.config import FrontendConfig
     from eurocslam.io.mcap_writer import McapSink
     from eurocslam.io.sensor_streams import SensorStreams, StreamOptions
     from eurocslam.io.sink import TeeSink, ThreadedSink
@@ -150,8 +151,10 @@ def run_slam(
     observers = []
     mcap = sink = writer = None
     if opt.mcap:
+        alpha = FrontendConfig.from_dict(cfg.frontend).rectify_alpha  # CameraInfo R/P = SLAM's
         streams = SensorStreams(
-            source, StreamOptions(images=opt.images, t_start_ns=t0, t_end_ns=t1)
+            source,
+            StreamOptions(images=opt.images, t_start_ns=t0, t_end_ns=t1, rectify_alpha=alpha),
         )
         mcap = McapSink(out_dir / "run.mcap", compression=opt.compression)
         sink = ThreadedSink(mcap)

@@ -83,7 +83,9 @@ def all_topics(mode: str = "raw") -> tuple[str, ...]:
 @dataclass(frozen=True)
 class StreamOptions:
     """`topics`: None for all, else a subset of `all_topics(images)` (in png/jpeg mode
-    '/camN/image_raw' also selects '/camN/image_raw/compressed'). Times are int64 ns, inclusive."""
+    '/camN/image_raw' also selects '/camN/image_raw/compressed'). Times are int64 ns, inclusive.
+    `rectify_alpha`: the stereo rectification the CameraInfo R/P describe (a SLAM run passes the
+    frontend's `rectify_alpha`, so they match the images it tracked)."""
 
     topics: frozenset[str] | None = None
     images: str = "raw"
@@ -92,6 +94,7 @@ class StreamOptions:
     t_end_ns: int | None = None
     gt_path_period_ns: int = 1_000_000_000
     gt_path_pose_period_ns: int = 100_000_000
+    rectify_alpha: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -143,7 +146,9 @@ class SensorStreams:
         self._lo, self._hi = int(lo), int(hi)
 
         rig = source.rig
-        self.infos = dict(zip(CAMS, ros2_calib.stereo_camera_infos(rig), strict=True))
+        self.infos = dict(
+            zip(CAMS, ros2_calib.stereo_camera_infos(rig, opt.rectify_alpha), strict=True)
+        )
         self.gyro_cov, self.accel_cov = ros2_calib.imu_covariances(rig.imu)
         self.static_transforms = [
             (FRAME_BODY, "imu0", rig.imu.T_body_imu),
