@@ -24,14 +24,10 @@ pytest.importorskip("websockets")
 from eurocslam.dataset.calib import default_rig
 from eurocslam.errors import DatasetError, OutputError
 from eurocslam.io import drone, ros2, ros2_calib
-from eurocslam.io.live import (
-    LiveSink,
-    PacingClock,
-    advertise_mcap,
-    play_mcap,
-    read_mcap_info,
-)
+from eurocslam.io.live import LiveSink
 from eurocslam.io.mcap_writer import McapSink
+from eurocslam.io.pacing import PacingClock
+from eurocslam.io.playback import advertise_mcap, play_mcap, read_mcap_info
 from live_client import playback_control, run_session
 
 T0 = 1_403_715_273_262_142_976

@@ -72,7 +72,8 @@ class _ViewerWatch:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eurocslam.io.live import LiveSink, advertise_mcap, play_mcap, read_mcap_info
+    from eurocslam.io.live import LiveSink
+    from eurocslam.io.playback import advertise_mcap, play_mcap, read_mcap_info
     from eurocslam.progress import bar
 
     if not args.live:
