@@ -58,7 +58,7 @@ def rectify_stereo(rig: StereoRig, alpha: float = 0.0) -> StereoRectification:
     """Rectify the stereo pair of `rig` (zero disparity at infinity) with `cv2.stereoRectify`."""
     c0, c1 = rig.cam0, rig.cam1
     T_cam1_cam0 = rig.T_cam1_cam0
-    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
+    r1, r2, p1, p2, _, _, _ = cv2.stereoRectify(
         c0.K,
         c0.D,
         c1.K,
@@ -69,6 +69,9 @@ def rectify_stereo(rig: StereoRig, alpha: float = 0.0) -> StereoRectification:
         flags=cv2.CALIB_ZERO_DISPARITY,
         alpha=alpha,
     )
+    # float64 already (asarray returns the same arrays); typed for the checker
+    R1, R2 = np.asarray(r1, dtype=np.float64), np.asarray(r2, dtype=np.float64)
+    P1, P2 = np.asarray(p1, dtype=np.float64), np.asarray(p2, dtype=np.float64)
     geometry = RectifiedStereo(
         fx=float(P1[0, 0]),
         fy=float(P1[1, 1]),
