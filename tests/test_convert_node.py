@@ -13,7 +13,7 @@ from eurocslam.convert import ConvertOptions, convert
 from eurocslam.dataset import open_sequence
 from eurocslam.dataset.calib import default_rig
 from eurocslam.geometry import make_T, so3_exp
-from eurocslam.io import ros2
+from eurocslam.io import ros2, ros2_calib
 from eurocslam.io.mcap_writer import McapSink
 
 sys.path.insert(0, str(Path(__file__).with_name("node")))
@@ -45,14 +45,14 @@ def test_node_decodes_every_builder(tmp_path: Path) -> None:
     t = 1_403_715_273_262_142_976
     T = make_T(so3_exp(np.array([0.1, -0.2, 0.3])), np.array([1.0, 2.0, 3.0]))
     img = np.arange(48 * 64, dtype=np.uint8).reshape(48, 64)
-    i0, _ = ros2.stereo_camera_infos(default_rig())
-    gc, ac = ros2.imu_covariances(default_rig().imu)
+    i0, _ = ros2_calib.stereo_camera_infos(default_rig())
+    gc, ac = ros2_calib.imu_covariances(default_rig().imu)
     msgs = [
         ("/tf_static", ros2.TF_MESSAGE, ros2.tf_message([ros2.Transform(t, "body", "cam0", T)])),
         ("/img", ros2.IMAGE, ros2.image(t, "cam0", img)),
         ("/img_rgb", ros2.IMAGE, ros2.image(t, "cam0", np.stack([img] * 3, axis=2))),
         ("/img/compressed", ros2.COMPRESSED_IMAGE, ros2.compressed_image(t, "cam0", "png", b"x")),
-        ("/info", ros2.CAMERA_INFO, ros2.camera_info(t, "cam0", i0)),
+        ("/info", ros2.CAMERA_INFO, ros2_calib.camera_info(t, "cam0", i0)),
         ("/imu", ros2.IMU, ros2.imu(t, "imu0", [1, 2, 3], [4, 5, 6], gc, ac)),
         ("/pose", ros2.POSE_STAMPED, ros2.pose_stamped(t, "world", T)),
         ("/path", ros2.PATH, ros2.path(t, "world", [t, t + 1, t + 2], np.stack([T] * 3))),

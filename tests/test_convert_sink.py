@@ -11,7 +11,8 @@ from mcap.reader import make_reader
 
 from eurocslam.errors import OutputError
 from eurocslam.io import ros2
-from eurocslam.io.mcap_writer import McapSink, qos_profile_yaml
+from eurocslam.io.mcap_writer import McapSink
+from eurocslam.io.qos import qos_profile_yaml
 from eurocslam.io.sink import ReorderBuffer, Sink, TeeSink, ThreadedSink
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from eurocslam.camera import triangulate_rect
 from eurocslam.config import RunConfig
 from eurocslam.dataset import open_sequence
 from eurocslam.dataset.synth import Scene, SynthSpec, synthesize
@@ -14,7 +15,6 @@ from eurocslam.dataset.types import StereoFrame
 from eurocslam.eval.align import align
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import Extractor
-from eurocslam.frontend.stereo import triangulate_rect
 from eurocslam.pipeline.slam import SlamPipeline
 from frontend_helpers import Frontend
 

@@ -6,16 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
+from eurocslam.camera import bucket_select, project_rect, triangulate_rect
 from eurocslam.dataset.calib import default_rig
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import image_problem
-from eurocslam.frontend.features import Features, OrbExtractor, bucket_select, hamming
-from eurocslam.frontend.stereo import (
-    StereoRectifier,
-    project_rect,
-    triangulate_rect,
-    undistort_points,
-)
+from eurocslam.frontend.features import Features, OrbExtractor, hamming
+from eurocslam.frontend.stereo import StereoRectifier, undistort_points
 from eurocslam.frontend.tracking import LocalMap, optimize_pose, pnp_ransac
 from eurocslam.geometry import inv_T, make_T, rotation_angle, so3_exp
 

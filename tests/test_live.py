@@ -23,15 +23,11 @@ pytest.importorskip("websockets")
 
 from eurocslam.dataset.calib import default_rig
 from eurocslam.errors import DatasetError, OutputError
-from eurocslam.io import drone, ros2
-from eurocslam.io.live import (
-    LiveSink,
-    PacingClock,
-    advertise_mcap,
-    play_mcap,
-    read_mcap_info,
-)
+from eurocslam.io import drone, ros2, ros2_calib
+from eurocslam.io.live import LiveSink
 from eurocslam.io.mcap_writer import McapSink
+from eurocslam.io.pacing import PacingClock
+from eurocslam.io.playback import advertise_mcap, play_mcap, read_mcap_info
 from live_client import playback_control, run_session
 
 T0 = 1_403_715_273_262_142_976
@@ -64,8 +60,8 @@ def _T_world_body(k: int) -> np.ndarray:
 def _write_run_like(sink, n: int = N_FRAMES) -> None:  # type: ignore[no-untyped-def]
     """The main topics of a run, built with the project's message builders, in log-time order."""
     rig = default_rig()
-    info0, _ = ros2.stereo_camera_infos(rig)
-    gcov, acov = ros2.imu_covariances(rig.imu)
+    info0, _ = ros2_calib.stereo_camera_infos(rig)
+    gcov, acov = ros2_calib.imu_covariances(rig.imu)
     sink.write(
         "/tf_static",
         ros2.TF_MESSAGE,
@@ -86,7 +82,9 @@ def _write_run_like(sink, n: int = N_FRAMES) -> None:  # type: ignore[no-untyped
             "/tf", ros2.TF_MESSAGE, t, ros2.tf_message([ros2.Transform(t, "world", "body", T)])
         )
         sink.write("/cam0/image_raw", ros2.IMAGE, t, ros2.image(t, "cam0", _img(k)))
-        sink.write("/cam0/camera_info", ros2.CAMERA_INFO, t, ros2.camera_info(t, "cam0", info0))
+        sink.write(
+            "/cam0/camera_info", ros2.CAMERA_INFO, t, ros2_calib.camera_info(t, "cam0", info0)
+        )
         sink.write("/slam/pose", ros2.POSE_STAMPED, t, ros2.pose_stamped(t, "world", T))
         sink.write(
             "/slam/path",

@@ -107,7 +107,7 @@ def test_run_live_streams_while_processing_and_writes_the_mcap(tmp_path: Path) -
     assert "keeps the final state until the viewer disconnects" in stderr
     assert (out / "run.mcap").is_file() and not (out / "run.mcap.partial").exists()
     # what went live is what went into the file
-    from eurocslam.io.live import read_mcap_info
+    from eurocslam.io.playback import read_mcap_info
 
     info = read_mcap_info(out / "run.mcap")
     file_topics = {c.topic for c in info.channels.values()}

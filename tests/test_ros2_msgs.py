@@ -11,7 +11,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from eurocslam.dataset.calib import default_rig
 from eurocslam.geometry import inv_T, make_T, so3_exp
-from eurocslam.io import ros2
+from eurocslam.io import cdr, ros2, ros2_batch, ros2_calib
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
 T_NS = 1_403_715_273_262_142_976
@@ -28,7 +28,7 @@ def _h(t_ns: int, frame: str):
 
 
 def _pose(T: np.ndarray):
-    p = ros2.pose7(T)
+    p = cdr.pose7(T)
     G = TS.types
     return G["geometry_msgs/msg/Pose"](
         position=G["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
@@ -125,7 +125,7 @@ def test_compressed_image_and_string_alignment(frame: str) -> None:
 
 def test_camera_info_matches_rosbags_and_rectification_is_sane() -> None:
     rig = default_rig()
-    i0, i1 = ros2.stereo_camera_infos(rig)
+    i0, i1 = ros2_calib.stereo_camera_infos(rig)
     for info, frame in ((i0, "cam0"), (i1, "cam1")):
         ref = TS.types[ros2.CAMERA_INFO](
             header=_h(T_NS, frame),
@@ -142,7 +142,7 @@ def test_camera_info_matches_rosbags_and_rectification_is_sane() -> None:
                 x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
             ),
         )
-        _check(ros2.camera_info(T_NS, frame, info), ref, ros2.CAMERA_INFO)
+        _check(ros2_calib.camera_info(T_NS, frame, info), ref, ros2.CAMERA_INFO)
         assert np.allclose(info.R @ info.R.T, np.eye(3), atol=1e-9)
     np.testing.assert_allclose(i0.K, rig.cam0.K)
     np.testing.assert_allclose(i0.D[:4], rig.cam0.distortion)
@@ -153,7 +153,7 @@ def test_camera_info_matches_rosbags_and_rectification_is_sane() -> None:
 
 def test_imu_covariance_is_density_squared_over_dt_and_matches_rosbags() -> None:
     rig = default_rig()
-    gcov, acov = ros2.imu_covariances(rig.imu)
+    gcov, acov = ros2_calib.imu_covariances(rig.imu)
     assert gcov[0, 0] == pytest.approx(rig.imu.gyro_noise_density**2 * rig.imu.rate_hz)
     assert acov[2, 2] == pytest.approx(rig.imu.accel_noise_density**2 * rig.imu.rate_hz)
     G = TS.types
@@ -184,7 +184,7 @@ def test_tf_pose_path_point_match_rosbags() -> None:
     trs = [ros2.Transform(T_NS + i, "body", f"cam{i}", Ts[i]) for i in range(3)]
 
     def tr_ref(tr: ros2.Transform):
-        p = ros2.pose7(tr.T_parent_child)
+        p = cdr.pose7(tr.T_parent_child)
         return G["geometry_msgs/msg/TransformStamped"](
             header=_h(tr.t_ns, tr.parent),
             child_frame_id=tr.child,
@@ -224,11 +224,11 @@ def test_tf_pose_path_point_match_rosbags() -> None:
     _check(ros2.point_stamped(T_NS, "gt_world", [1, 2, 3]), ref, ros2.POINT_STAMPED)
     # quaternion round trip
     T = _T(7)
-    q = ros2.pose7(T)[3:]
+    q = cdr.pose7(T)[3:]
     from eurocslam.geometry import quat_wxyz_to_rot, xyzw_to_wxyz
 
     np.testing.assert_allclose(quat_wxyz_to_rot(xyzw_to_wxyz(q)), T[:3, :3], atol=1e-12)
-    np.testing.assert_allclose(ros2.poses7(np.stack([T, inv_T(T)]))[0], ros2.pose7(T))
+    np.testing.assert_allclose(cdr.poses7(np.stack([T, inv_T(T)]))[0], cdr.pose7(T))
 
 
 @pytest.mark.parametrize("with_rgb,with_int", [(False, False), (True, False), (True, True)])
@@ -366,8 +366,8 @@ def test_std_msgs_match_rosbags() -> None:
 
 
 def test_negative_and_pre_epoch_times_split_consistently() -> None:
-    assert ros2.split_ns(1_500_000_001) == (1, 500_000_001)
-    assert ros2.split_ns(0) == (0, 0)
+    assert cdr.split_ns(1_500_000_001) == (1, 500_000_001)
+    assert cdr.split_ns(0) == (0, 0)
 
 
 @pytest.mark.parametrize("frame", ["", "i", "imu0", "abcdefgh", "abcdefghi"])
@@ -376,14 +376,14 @@ def test_batch_encoders_equal_single_messages(frame: str) -> None:
     t = T_NS + np.arange(20) * 5_000_000
     g, a = rng.normal(size=(20, 3)), rng.normal(size=(20, 3))
     gc, ac = np.eye(3) * 2.0, np.eye(3) * 3.0
-    imus = ros2.imu_batch(t, frame, g, a, gc, ac)
+    imus = ros2_batch.imu_batch(t, frame, g, a, gc, ac)
     assert imus == [ros2.imu(int(t[i]), frame, g[i], a[i], gc, ac) for i in range(20)]
     Ts = [_T(i) for i in range(20)]
-    p7 = ros2.poses7(np.stack(Ts))
-    poses = ros2.pose_stamped_batch(t, frame, p7)
+    p7 = cdr.poses7(np.stack(Ts))
+    poses = ros2_batch.pose_stamped_batch(t, frame, p7)
     assert poses == [ros2.pose_stamped(int(t[i]), frame, Ts[i]) for i in range(20)]
     for child in ("", "gt_body", "abcdefg"):
-        tfs = ros2.tf_batch(t, frame, child, p7)
+        tfs = ros2_batch.tf_batch(t, frame, child, p7)
         assert tfs == [
             ros2.tf_message([ros2.Transform(int(t[i]), frame, child, Ts[i])]) for i in range(20)
         ]

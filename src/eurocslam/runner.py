@@ -186,7 +186,13 @@ class _McapOutput:
         from eurocslam.io.slam_topics import SlamMcapWriter
 
         streams = SensorStreams(
-            source, StreamOptions(images=opt.images, t_start_ns=t0, t_end_ns=t1)
+            source,
+            StreamOptions(
+                images=opt.images,
+                t_start_ns=t0,
+                t_end_ns=t1,
+                rectify_alpha=cfg.frontend.rectify_alpha,  # CameraInfo R/P = the SLAM's
+            ),
         )
         self.mcap = McapSink(folder / "run.mcap", compression=opt.compression)
         self.sink = ThreadedSink(self.mcap)

@@ -44,11 +44,10 @@ from eurocslam.backend.initializer import InitialState
 from eurocslam.backend.landmarks import LandmarkKeys, landmark_indices
 from eurocslam.backend.preintegration import bias, integrate
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate, SegmentSolution
+from eurocslam.camera import RectifiedStereo, bucket_select
 from eurocslam.config import RunConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
-from eurocslam.frontend.features import bucket_select
-from eurocslam.frontend.types import RectifiedStereo
 from eurocslam.geometry import F64, inv_T
 
 

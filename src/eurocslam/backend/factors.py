@@ -8,10 +8,10 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from eurocslam.backend.preintegration import make_params
+from eurocslam.camera import RectifiedStereo
 from eurocslam.config import BackendConfig, ImuConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
-from eurocslam.frontend.types import RectifiedStereo
 from eurocslam.geometry import F64
 
 

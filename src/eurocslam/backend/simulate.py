@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from eurocslam.camera import RectifiedStereo
 from eurocslam.dataset.calib import default_rig
 from eurocslam.dataset.types import ImuData
-from eurocslam.frontend.types import RectifiedStereo
 from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
 
 # EuRoC-like mounting: body x points up (world z), body z forward (world x), body y = z cross x

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
 import time
 from pathlib import Path
 
@@ -12,6 +12,8 @@ from eurocslam.errors import EurocSlamError
 
 NAME = "play"
 HELP = "serve a recorded MCAP (e.g. OUT/run.mcap) live to Foxglove over WebSocket"
+
+logger = logging.getLogger(__name__)
 
 _GRACE_S = 3.0  # a viewer reloading its page reconnects within this time
 
@@ -72,7 +74,8 @@ class _ViewerWatch:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eurocslam.io.live import LiveSink, advertise_mcap, play_mcap, read_mcap_info
+    from eurocslam.io.live import LiveSink
+    from eurocslam.io.playback import advertise_mcap, play_mcap, read_mcap_info
     from eurocslam.progress import bar
 
     if not args.live:
@@ -96,23 +99,16 @@ def run(args: argparse.Namespace) -> int:
         rate=args.rate or None,
         playback_range_ns=(info.start_ns, info.end_ns),
     )
-    log = sys.stderr
     try:
         advertise_mcap(info, sink)
-        print(
+        logger.info(
             f"eurocslam play: serving {info.path} ({info.message_count} messages, {span_s:.1f} s, "
             f"{len(info.channels)} topics) on {sink.url}\n"
             "  In Foxglove: Open connection > Foxglove WebSocket > "
-            f"{sink.url}; layout: Layouts > Import from file > layouts/eurocslam.json",
-            file=log,
-            flush=True,
+            f"{sink.url}; layout: Layouts > Import from file > layouts/eurocslam.json"
         )
         if not args.no_wait:
-            print(
-                "eurocslam play: waiting for a viewer to connect (Ctrl-C to stop)",
-                file=log,
-                flush=True,
-            )
+            logger.info("eurocslam play: waiting for a viewer to connect (Ctrl-C to stop)")
             while not sink.wait_for_client(1.0):
                 pass
             sink.wait_subscriptions_settled()  # let every panel subscribe before the first message
@@ -133,33 +129,28 @@ def run(args: argparse.Namespace) -> int:
         finally:
             pb.close()
         if not res.finished:
-            print(
-                f"eurocslam play: stopped after {res.messages} messages ({res.stopped_because})",
-                file=log,
+            logger.info(
+                f"eurocslam play: stopped after {res.messages} messages ({res.stopped_because})"
             )
             return 0
-        print(
+        logger.info(
             f"eurocslam play: end of file after {res.messages} messages"
-            + (f", {res.seeks} seeks" if res.seeks else ""),
-            file=log,
-            flush=True,
+            + (f", {res.seeks} seeks" if res.seeks else "")
         )
         if watch is None:
-            print("eurocslam play: still serving (Ctrl-C to stop)", file=log, flush=True)
+            logger.info("eurocslam play: still serving (Ctrl-C to stop)")
             while True:
                 time.sleep(0.5)
-        print(
+        logger.info(
             "eurocslam play: still serving the last state until the viewer disconnects "
-            "(Ctrl-C to stop now)",
-            file=log,
-            flush=True,
+            "(Ctrl-C to stop now)"
         )
         while not watch():
             time.sleep(0.2)
-        print("eurocslam play: the viewer disconnected", file=log)
+        logger.info("eurocslam play: the viewer disconnected")
         return 0
     except KeyboardInterrupt:
-        print("eurocslam play: stopped (Ctrl-C)", file=log)
+        logger.info("eurocslam play: stopped (Ctrl-C)")
         return 0
     finally:
         sink.close()

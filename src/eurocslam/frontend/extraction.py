@@ -14,13 +14,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from eurocslam.camera import RectifiedStereo
 from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import U8, StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.features import Features, OrbExtractor
 from eurocslam.frontend.matching import StereoMatches, match_stereo
 from eurocslam.frontend.stereo import StereoRectifier
-from eurocslam.frontend.types import RectifiedStereo
 from eurocslam.geometry import F64
 
 

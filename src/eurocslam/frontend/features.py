@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from eurocslam.camera import bucket_select
 from eurocslam.dataset.types import U8
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.geometry import F64
@@ -50,25 +51,6 @@ def hamming(a: NDArray[np.uint8], b: NDArray[np.uint8]) -> NDArray[np.int32]:
         np.ascontiguousarray(a).view(np.uint64), np.ascontiguousarray(b).view(np.uint64)
     )
     return np.bitwise_count(x).sum(axis=-1, dtype=np.int32)
-
-
-def bucket_select(
-    uv: F64, response: F64, n: int, width: int, height: int, cols: int, rows: int
-) -> NDArray[np.intp]:
-    """Indices of at most `n` keypoints spread over a cols x rows grid, strongest first per cell."""
-    if uv.shape[0] <= n:
-        return np.argsort(-response, kind="stable")
-    cx = np.clip((uv[:, 0] * cols / width).astype(np.int64), 0, cols - 1)
-    cy = np.clip((uv[:, 1] * rows / height).astype(np.int64), 0, rows - 1)
-    cell = cy * cols + cx
-    # sort by cell, then by descending response; rank inside the cell
-    order = np.lexsort((-response, cell))
-    cell_sorted = cell[order]
-    first = np.searchsorted(cell_sorted, cell_sorted, side="left")
-    rank = np.arange(order.size) - first
-    # round-robin: rank 0 of every cell (strongest first), then rank 1, ...
-    pick = np.lexsort((-response[order], rank))
-    return order[pick[:n]]
 
 
 class OrbExtractor:

@@ -17,10 +17,10 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
+from eurocslam.camera import RectifiedStereo
 from eurocslam.dataset.types import U8
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.features import Features, hamming
-from eurocslam.frontend.types import RectifiedStereo
 from eurocslam.geometry import F64
 
 

@@ -19,11 +19,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from eurocslam.camera import RectifiedStereo, triangulate_rect
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import FrameFeatures
 from eurocslam.frontend.features import Features
 from eurocslam.frontend.motion import VelocityModel
-from eurocslam.frontend.stereo import StereoRectifier, triangulate_rect
+from eurocslam.frontend.stereo import StereoRectifier
 from eurocslam.frontend.tracking import (
     LocalMap,
     body_T_from_rect,
@@ -34,7 +35,7 @@ from eurocslam.frontend.tracking import (
     rigid,
     search_by_projection,
 )
-from eurocslam.frontend.types import FrontendResult, MapCorrection, RectifiedStereo, TrackingState
+from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState
 from eurocslam.geometry import F64, inv_T
 
 

@@ -13,8 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from eurocslam.camera import RectifiedStereo
 from eurocslam.frontend.features import Features, hamming
-from eurocslam.frontend.types import RectifiedStereo
 from eurocslam.geometry import F64, inv_T, make_T, so3_exp
 
 I64 = NDArray[np.int64]

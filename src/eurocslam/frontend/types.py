@@ -2,7 +2,8 @@
 
 The frontend works in the *rectified* cam0 frame (`rect0`): stereo measurements (uL, uR, v)
 are rectified pixel coordinates, so the backend can use `gtsam.Cal3_S2Stereo` +
-`GenericStereoFactor3D` with `body_P_sensor = T_body_rect0`.
+`GenericStereoFactor3D` with `body_P_sensor = T_body_rect0` (the geometry is
+`eurocslam.camera.RectifiedStereo`).
 """
 
 from __future__ import annotations
@@ -21,20 +22,6 @@ class TrackingState(str, Enum):
     OK = "OK"  # tracked against the local map
     LOST = "LOST"  # images present but tracking failed (too few inliers, PnP failed)
     NO_IMAGE = "NO_IMAGE"  # blank, saturated or missing image(s)
-
-
-@dataclass(frozen=True)
-class RectifiedStereo:
-    """Rectified stereo geometry: identical pinhole intrinsics for both cameras."""
-
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    baseline: float  # metres, rect1 = rect0 translated by +baseline along x
-    width: int
-    height: int
-    T_body_rect0: F64  # 4x4: rectified cam0 frame -> body (IMU) frame
 
 
 @dataclass(frozen=True)

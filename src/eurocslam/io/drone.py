@@ -34,7 +34,7 @@ from functools import lru_cache
 import numpy as np
 
 from eurocslam.geometry import F64, make_T
-from eurocslam.io import ros2
+from eurocslam.io import cdr, ros2
 
 # visualization_msgs/Marker constants
 CUBE = 1
@@ -240,7 +240,7 @@ def _static_cdr(frame_id: str, color: Rgba, ns: str) -> tuple[bytes, tuple[int, 
     """The MarkerArray's CDR up to the propellers (marker count and the static markers), and
     the offsets of their stamps: only those and the propellers change from call to call."""
     parts, poses = _static_in_body(color)
-    out = ros2.CdrWriter()
+    out = cdr.CdrWriter()
     out.u32(len(parts) + 1)
     stamps = []
     for i, (part, T_body_part) in enumerate(zip(parts, poses, strict=True)):
@@ -270,9 +270,9 @@ def drone_markers(
     """
     rgba = _rgba(frame_id, color)
     static, stamps = _static_cdr(frame_id, rgba, ns)
-    out = ros2.CdrWriter()
+    out = cdr.CdrWriter()
     out.buf = bytearray(static)
-    stamp = ros2.stamp_bytes(t_ns)
+    stamp = cdr.stamp_bytes(t_ns)
     for off in stamps:
         out.buf[off : off + len(stamp)] = stamp
     props = _props(t_ns, spin_hz)

@@ -2,23 +2,20 @@
 
 `LiveSink` is a `Sink` (see `io/sink.py`): `write(topic, msgtype, log_time_ns, cdr_bytes)` logs
 the message on a channel of a foxglove-sdk WebSocket server, paced so that data time advances at
-`rate` x wall time (`rate=None` or `0`: as fast as possible). `eurocslam run SEQ --live` tees it
-with the MCAP sink; `eurocslam play RUN.mcap --live` feeds it from a recorded file (`play_mcap`).
-A user opens Foxglove, connects to `ws://localhost:8765` and uses the same layout as for the
-recorded file (`layouts/eurocslam.json`).
+`rate` x wall time (`rate=None` or `0`: as fast as possible; `io.pacing.PacingClock`).
+`eurocslam run SEQ --live` tees it with the MCAP sink; `eurocslam play RUN.mcap --live` feeds it
+from a recorded file (`io.playback.play_mcap`). A user opens Foxglove, connects to
+`ws://localhost:8765` and uses the same layout as for the recorded file (`layouts/eurocslam.json`).
 
-- Two protocol names, one protocol. foxglove-sdk (>= 0.1x) only accepts the WebSocket
-  subprotocol `foxglove.sdk.v1`; Foxglove Studio <= 1.8x, Lichtblick (before its late-2025
-  releases) and other ws-protocol clients ask for `foxglove.websocket.v1`, the same protocol
-  under its older name. So the SDK server listens on an ephemeral loopback port and a small
-  relay (`websockets`) listens on the user's port, accepts either name and passes frames through
-  unchanged. Both today's Foxglove and the open-source viewers connect.
-- Latched topics (`/tf_static`, and channels whose MCAP QoS says transient-local): the newest
-  message is kept and re-sent whenever a client subscribes, so a viewer that connects late still
-  gets the static transforms. Any topic's newest message that reached no viewer (the first
-  message of a topic advertised a moment before, like `/slam/path_final` at the end of a run) is
-  sent to the next subscriber. Re-sent messages carry the current log time (viewers stamp what
-  they receive with the server clock and warn when data goes back in time).
+- Two protocol names, one protocol: the SDK server listens on an ephemeral loopback port behind
+  `io.live_relay.Relay`, which listens on the user's port and accepts both subprotocol names, so
+  today's Foxglove and the open-source viewers connect.
+- Latched topics (`io.qos.LATCHED_TOPICS`, and channels whose MCAP QoS says transient-local):
+  the newest message is kept and re-sent whenever a client subscribes, so a viewer that connects
+  late still gets the static transforms. Any topic's newest message that reached no viewer (the
+  first message of a topic advertised a moment before, like `/slam/path_final` at the end of a
+  run) is sent to the next subscriber. Re-sent messages carry the current log time (viewers stamp
+  what they receive with the server clock and warn when data goes back in time).
 - foxglove-sdk 0.30 quirks handled here: it may call `on_subscribe` before the new subscriber
   can receive on that channel (latched messages are sent again 0.3 s and 1.5 s later), and it
   may refuse a viewer's subscription to a channel created while the viewer connected ("Unknown
@@ -39,31 +36,21 @@ recorded file (`layouts/eurocslam.json`).
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
-import math
-import re
-import struct
 import threading
 import time
-from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from eurocslam.errors import DatasetError, OutputError
+from eurocslam.errors import OutputError
+from eurocslam.io.live_relay import Relay
+from eurocslam.io.pacing import PacingClock
+from eurocslam.io.qos import LATCHED_TOPICS
 
 if TYPE_CHECKING:
     import foxglove
 
-SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
 DEFAULT_PORT = 8765
-LATCHED_TOPICS = frozenset({"/tf_static"})
-_MAX_LAG_S = 0.5  # when the producer falls this far behind the pacing clock, re-anchor it
 _LATCH_RESEND_S = (0.3, 1.5)  # latched messages go again this long after a subscription
-_OP_MESSAGE_DATA, _OP_TIME = b"\x01", b"\x02"  # server binary opcodes (ws-protocol)
-_MAX_HELD = 256  # message frames held per viewer until its clock starts
-_LEGACY_BINARY_OPS = (b"\x01", b"\x02", b"\x03", b"\x04")  # data, time, service, asset
 
 
 def _require_live_deps() -> None:
@@ -77,286 +64,6 @@ def _require_live_deps() -> None:
         ) from None
 
 
-# ---- pacing ---------------------------------------------------------------------------------
-class PacingClock:
-    """Maps data time (ns) to wall time at `rate` x real time, with pause and speed changes.
-
-    `wait(t_ns)` blocks until the wall clock reaches the slot of `t_ns` (and while paused).
-    `rate` None, 0 or inf means as fast as possible. If the producer is slower than the clock
-    (more than 0.5 s behind), the clock is re-anchored instead of bursting later."""
-
-    def __init__(
-        self,
-        rate: float | None = 1.0,
-        *,
-        clock: Callable[[], float] = time.monotonic,
-    ) -> None:
-        self._cond = threading.Condition()
-        self._clock = clock
-        self._rate = self._check_rate(rate)
-        self._paused = False
-        self._stopped = False
-        self._anchor: tuple[int, float] | None = None  # (data ns, wall s)
-        self.last_ns: int | None = None
-
-    @staticmethod
-    def _check_rate(rate: float | None) -> float | None:
-        if rate is None or rate == 0 or math.isinf(rate):
-            return None
-        if not (rate > 0 and math.isfinite(rate)):
-            raise ValueError(f"rate must be > 0 (or 0 for as fast as possible), got {rate}")
-        return float(rate)
-
-    @property
-    def rate(self) -> float | None:
-        return self._rate
-
-    @property
-    def paused(self) -> bool:
-        return self._paused
-
-    @property
-    def stopped(self) -> bool:
-        return self._stopped
-
-    def set_rate(self, rate: float | None) -> None:
-        with self._cond:
-            self._rate = self._check_rate(rate)
-            self._anchor = None
-            self._cond.notify_all()
-
-    def pause(self) -> None:
-        with self._cond:
-            self._paused = True
-            self._cond.notify_all()
-
-    def resume(self) -> None:
-        with self._cond:
-            self._paused = False
-            self._anchor = None
-            self._cond.notify_all()
-
-    def reanchor(self) -> None:
-        """Forget the time mapping (after a seek or a loop): the next `wait` starts afresh."""
-        with self._cond:
-            self._anchor = None
-            self._cond.notify_all()
-
-    def stop(self) -> None:
-        with self._cond:
-            self._stopped = True
-            self._cond.notify_all()
-
-    def wait(self, t_ns: int) -> bool:
-        """Block until `t_ns` is due. Returns False if the clock was stopped meanwhile."""
-        t_ns = int(t_ns)
-        with self._cond:
-            while True:
-                if self._stopped:
-                    return False
-                if self._paused:
-                    self._cond.wait(0.1)
-                    continue
-                if self._rate is None:
-                    break
-                now = self._clock()
-                if self._anchor is None:
-                    self._anchor = (t_ns, now)
-                    break
-                t0, w0 = self._anchor
-                due = w0 + (t_ns - t0) / 1e9 / self._rate
-                if now >= due:
-                    if now - due > _MAX_LAG_S:  # the producer is behind: do not burst later
-                        self._anchor = (t_ns, now)
-                    break
-                self._cond.wait(min(due - now, 0.1))
-            self.last_ns = t_ns if self.last_ns is None else max(self.last_ns, t_ns)
-            return True
-
-
-# ---- subprotocol relay ----------------------------------------------------------------------
-class _Relay:
-    """Accepts `foxglove.sdk.v1` and `foxglove.websocket.v1` on (host, port) and relays each
-    connection, frame by frame, to the SDK server on 127.0.0.1:upstream_port."""
-
-    def __init__(
-        self,
-        host: str,
-        port: int,
-        upstream_port: int,
-        on_unknown_channel: Callable[[int], None] | None = None,
-    ) -> None:
-        self.host = host
-        self.on_unknown_channel = on_unknown_channel
-        self.upstream = f"ws://127.0.0.1:{upstream_port}"
-        self.port = 0
-        self._clients = 0
-        self._lock = threading.Condition()
-        self._loop = asyncio.new_event_loop()
-        self._server: Any = None
-        self._error: BaseException | None = None
-        self._started = threading.Event()
-        self._thread = threading.Thread(
-            target=self._run, args=(port,), daemon=True, name="eurocslam-live-relay"
-        )
-        self._thread.start()
-        if not self._started.wait(10.0):
-            raise OutputError(f"live view: the WebSocket relay on {host}:{port} did not start")
-        if self._error is not None:
-            err = self._error
-            if isinstance(err, OSError):
-                raise OutputError(
-                    f"live view: cannot listen on {host}:{port}: {err.strerror or err} "
-                    "(is another server using the port? choose one with --port)"
-                ) from None
-            raise OutputError(f"live view: relay failed to start: {err}") from None
-
-    @property
-    def n_clients(self) -> int:
-        with self._lock:
-            return self._clients
-
-    def wait_clients(self, predicate: Callable[[int], bool], timeout: float | None) -> bool:
-        with self._lock:
-            return self._lock.wait_for(lambda: predicate(self._clients), timeout)
-
-    def _run(self, port: int) -> None:
-        asyncio.set_event_loop(self._loop)
-        try:
-            self._loop.run_until_complete(self._start(port))
-        except BaseException as e:
-            self._error = e
-            self._started.set()
-            return
-        self._started.set()
-        self._loop.run_forever()
-        # shutting down: close the listening socket and every open connection
-        self._loop.run_until_complete(self._shutdown())
-        self._loop.close()
-
-    async def _start(self, port: int) -> None:
-        from websockets.asyncio.server import serve
-
-        self._server = await serve(
-            self._handle,
-            self.host,
-            port,
-            subprotocols=list(SUBPROTOCOLS),  # type: ignore[arg-type]
-            compression=None,
-            max_size=64 << 20,
-            ping_interval=20,
-            ping_timeout=60,
-        )
-        self.port = int(self._server.sockets[0].getsockname()[1])
-
-    async def _shutdown(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            with contextlib.suppress(TimeoutError, asyncio.TimeoutError):
-                await asyncio.wait_for(self._server.wait_closed(), 3.0)
-        tasks = [t for t in asyncio.all_tasks(self._loop) if t is not asyncio.current_task()]
-        for t in tasks:
-            t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-
-    async def _handle(self, client: Any) -> None:
-        from websockets.asyncio.client import connect
-        from websockets.exceptions import WebSocketException
-
-        with self._lock:
-            self._clients += 1
-            self._lock.notify_all()
-        try:
-            async with connect(
-                self.upstream,
-                subprotocols=list(SUBPROTOCOLS),  # type: ignore[arg-type]
-                compression=None,
-                max_size=None,
-                open_timeout=10,
-                ping_interval=None,
-            ) as upstream:
-                down = asyncio.ensure_future(self._pump(client, upstream))
-                up = asyncio.ensure_future(self._pump_to_viewer(upstream, client))
-                _, pending = await asyncio.wait({down, up}, return_when=asyncio.FIRST_COMPLETED)
-                for t in pending:
-                    t.cancel()
-                await asyncio.gather(*pending, return_exceptions=True)
-        except (OSError, WebSocketException, asyncio.TimeoutError, TimeoutError):
-            pass  # the viewer went away or the server is stopping: nothing to report
-        finally:
-            with self._lock:
-                self._clients -= 1
-                self._lock.notify_all()
-
-    def _server_status(self, frame: str) -> bool:
-        """Look at a text frame from the server; False drops it. foxglove-sdk sometimes refuses
-        a viewer's subscription to a channel it has just advertised ("Unknown channel ID: N",
-        when the channel was created while the viewer connected); the sink then re-creates the
-        channel, the viewer subscribes to the new one, and the error is not passed on."""
-        if '"status"' not in frame or "Unknown channel ID" not in frame:
-            return True
-        m = re.search(r"Unknown channel ID: (\d+)", frame)
-        if m is None or self.on_unknown_channel is None:
-            return True
-        threading.Thread(
-            target=self.on_unknown_channel, args=(int(m.group(1)),), daemon=True
-        ).start()
-        return False
-
-    @staticmethod
-    async def _pump(src: Any, dst: Any) -> None:
-        from websockets.exceptions import ConnectionClosed
-
-        try:
-            async for frame in src:
-                await dst.send(frame)
-        except ConnectionClosed:
-            pass
-        finally:
-            await dst.close()
-
-    async def _pump_to_viewer(self, server: Any, viewer: Any) -> None:
-        """Server -> viewer. Message data that overtakes the first `time` frame (the SDK queues
-        them separately) is held until that frame has gone out: a viewer stamps messages with
-        the last server time it got, 0 before the first, and would start its timeline at 1970."""
-        from websockets.exceptions import ConnectionClosed
-
-        held: list[bytes] = []
-        clock_started = False
-        # Viewers speaking the protocol's older name know the binary opcodes 1-4 only; Foxglove
-        # Studio 1.x treats any other (5: playback state) as an error and reconnects.
-        legacy = viewer.subprotocol == "foxglove.websocket.v1"
-        try:
-            async for frame in server:
-                if isinstance(frame, str):
-                    if not self._server_status(frame):
-                        continue
-                elif legacy and frame[:1] not in _LEGACY_BINARY_OPS:
-                    continue
-                elif not clock_started and frame[:1] == _OP_MESSAGE_DATA:
-                    held.append(frame)
-                    del held[:-_MAX_HELD]
-                    continue
-                elif frame[:1] == _OP_TIME:
-                    clock_started = True
-                    await viewer.send(frame)
-                    for f in held:
-                        await viewer.send(f)
-                    held.clear()
-                    continue
-                await viewer.send(frame)
-        except ConnectionClosed:
-            pass
-        finally:
-            await viewer.close()
-
-    def close(self) -> None:
-        if self._loop.is_running():
-            self._loop.call_soon_threadsafe(self._loop.stop)
-        self._thread.join(timeout=10.0)
-
-
-# ---- the sink -------------------------------------------------------------------------------
 @dataclass
 class _Topic:
     channel: foxglove.Channel
@@ -420,7 +127,7 @@ class LiveSink:
         except Exception as e:  # the SDK raises its own error types
             raise OutputError(f"live view: the Foxglove server did not start: {e}") from None
         try:
-            self._relay = _Relay(host, port, self._server.port, self._recreate_channel)
+            self._relay = Relay(host, port, self._server.port, self._recreate_channel)
         except BaseException:
             self._server.stop()
             raise
@@ -519,7 +226,7 @@ class LiveSink:
         )
 
     def _recreate_channel(self, channel_id: int) -> None:
-        """Replace a channel the server refused a subscription to (see `_Relay._server_status`):
+        """Replace a channel the server refused a subscription to (see `Relay._server_status`):
         viewers get an unadvertise and a new advertise for the topic and subscribe again."""
         with self._lock:
             if self._closed:
@@ -623,7 +330,7 @@ class LiveSink:
 
     def _resend(self, t: _Topic) -> None:
         """Log `t.last` again, at the viewer's current time, after a `time` frame (a new viewer
-        needs one before its first message; see `_Relay._pump_to_viewer`)."""
+        needs one before its first message; see `Relay._pump_to_viewer`)."""
         assert t.last is not None
         now = self._resend_time(t.last[0])
         self._broadcast_time(now)
@@ -746,172 +453,3 @@ class _Listener:
             did_seek=request.seek_time is not None,
             request_id=request.request_id,
         )
-
-
-# ---- playing a recorded MCAP ----------------------------------------------------------------
-@dataclass(frozen=True)
-class ChannelInfo:
-    topic: str
-    schema_name: str
-    schema: bytes
-    schema_encoding: str
-    message_encoding: str
-    latched: bool
-
-
-@dataclass(frozen=True)
-class McapInfo:
-    path: Path
-    start_ns: int
-    end_ns: int
-    message_count: int
-    channels: dict[int, ChannelInfo]  # by MCAP channel id
-
-
-def _is_transient_local(metadata: dict[str, str]) -> bool:
-    qos = metadata.get("offered_qos_profiles", "")
-    return "durability: 1" in qos or "transient_local" in qos.lower()
-
-
-def read_mcap_info(path: Path | str) -> McapInfo:
-    """Channels, schemas and time span of an MCAP (from its summary, else one scan)."""
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
-
-    p = Path(path)
-    if not p.is_file():
-        raise DatasetError(f"{p}: no such file")
-    try:
-        with open(p, "rb") as fh:
-            reader = make_reader(fh)
-            summary = reader.get_summary()
-            if summary is None or summary.statistics is None:
-                raise DatasetError(
-                    f"{p}: the MCAP has no summary section (an interrupted write?); "
-                    "re-run or repair it with `mcap recover`"
-                )
-            channels = {}
-            for cid, ch in summary.channels.items():
-                sch = summary.schemas.get(ch.schema_id)
-                if sch is None:
-                    raise DatasetError(f"{p}: channel {ch.topic} has no schema")
-                channels[cid] = ChannelInfo(
-                    ch.topic,
-                    sch.name,
-                    sch.data,
-                    sch.encoding,
-                    ch.message_encoding,
-                    ch.topic in LATCHED_TOPICS or _is_transient_local(dict(ch.metadata)),
-                )
-            st = summary.statistics
-            return McapInfo(
-                p,
-                int(st.message_start_time),
-                int(st.message_end_time),
-                int(st.message_count),
-                channels,
-            )
-    except DatasetError:
-        raise
-    except (McapError, OSError, ValueError, EOFError, struct.error) as e:
-        raise DatasetError(f"{p}: not a readable MCAP file ({type(e).__name__}: {e})") from None
-
-
-def _iter_messages(path: Path, start_ns: int | None) -> Iterator[tuple[Any, Any, Any]]:
-    from mcap.reader import make_reader
-
-    with open(path, "rb") as fh:
-        reader = make_reader(fh)
-        try:  # mcap >= 1.3 names it `starting_at`; older releases only know `start_time`
-            it = reader.iter_messages(starting_at=start_ns, log_time_order=True)
-        except TypeError:
-            it = reader.iter_messages(start_time=start_ns, log_time_order=True)
-        yield from it
-
-
-@dataclass
-class PlayResult:
-    messages: int = 0
-    loops: int = 0
-    seeks: int = 0
-    finished: bool = False  # reached the end of the file (last loop)
-    stopped_because: str = ""
-
-
-def play_mcap(
-    info: McapInfo,
-    sink: LiveSink,
-    *,
-    loop: bool = False,
-    stop_when_no_clients: Callable[[], bool] | None = None,
-    on_message: Callable[[int], None] | None = None,
-) -> PlayResult:
-    """Send the file's messages to `sink` in log-time order, paced by its clock. Handles seek
-    requests from the viewer; with `loop`, starts again at the end (like a seek to the start).
-    `stop_when_no_clients()` is polled between messages: when it returns True, playback stops.
-    """
-    res = PlayResult()
-    advertise_mcap(info, sink)
-    start: int | None = None
-    while True:
-        seek: int | None = None
-        for _schema, channel, message in _iter_messages(info.path, start):
-            s = sink.pop_seek()
-            if s is not None:
-                seek = s
-                break
-            if sink.clock.stopped:
-                res.stopped_because = "stopped"
-                return res
-            if stop_when_no_clients is not None and stop_when_no_clients():
-                res.stopped_because = "the viewer disconnected"
-                return res
-            sink.write(
-                channel.topic, info.channels[channel.id].schema_name, message.log_time, message.data
-            )
-            res.messages += 1
-            if on_message is not None:
-                on_message(int(message.log_time))
-        if seek is not None:
-            res.seeks += 1
-            start = max(info.start_ns, min(seek, info.end_ns))
-            sink.restart_at(start, announce=False)  # the listener answered the request
-            continue
-        if loop and not sink.clock.stopped:
-            res.loops += 1
-            start = None
-            sink.restart_at(info.start_ns)
-            continue
-        res.finished = True
-        sink.broadcast_ended()
-        return res
-
-
-def advertise_mcap(info: McapInfo, sink: LiveSink) -> None:
-    """Advertise every channel of the file (with the file's own schemas) and store the first
-    message of each latched channel, so a viewer gets `/tf_static` as soon as it subscribes,
-    even before (or after seeking past) the point where the file has it. Idempotent."""
-    from mcap.reader import make_reader
-
-    for c in info.channels.values():
-        sink.advertise(
-            c.topic,
-            c.schema_name,
-            schema=c.schema,
-            schema_encoding=c.schema_encoding,
-            message_encoding=c.message_encoding,
-            latched=c.latched,
-        )
-
-    latched = {cid: c.topic for cid, c in info.channels.items() if c.latched}
-    if not latched:
-        return
-    with open(info.path, "rb") as fh:
-        reader = make_reader(fh)
-        seen: set[int] = set()
-        for _s, ch, msg in reader.iter_messages(topics=list(latched.values()), log_time_order=True):
-            if ch.id not in seen and not sink.has_latched(ch.topic):
-                sink.set_latched(ch.topic, msg.log_time, msg.data)
-                seen.add(ch.id)
-            if len(seen) == len(latched):
-                break

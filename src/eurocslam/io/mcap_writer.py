@@ -27,6 +27,7 @@ import yaml
 from eurocslam import __version__
 from eurocslam.errors import OutputError
 from eurocslam.io import ros2
+from eurocslam.io.qos import LATCHED_TOPICS, qos_profile_yaml
 
 COMPRESSIONS = ("zstd", "lz4", "none")
 
@@ -61,33 +62,6 @@ def _use_zstd_level(level: int) -> None:
         current.level = level
     else:
         mw.zstandard = _ZstdAtLevel(current, level)  # type: ignore[attr-defined]
-
-
-# rmw enum values as rosbag2 (humble) serialises them: history 3 = UNKNOWN (as recorded),
-# reliability 1 = RELIABLE, durability 1 = TRANSIENT_LOCAL / 2 = VOLATILE, liveliness 1 =
-# AUTOMATIC; durations {0, 0} = "unspecified" (the rmw default: infinite).
-_DURATION0 = {"sec": 0, "nsec": 0}
-
-
-def qos_profile_yaml(*, transient_local: bool = False) -> str:
-    """The `offered_qos_profiles` string of one publisher, in rosbag2's (humble) YAML form."""
-    prof = [
-        {
-            "history": 3,
-            "depth": 0,
-            "reliability": 1,
-            "durability": 1 if transient_local else 2,
-            "deadline": dict(_DURATION0),
-            "lifespan": dict(_DURATION0),
-            "liveliness": 1,
-            "liveliness_lease_duration": dict(_DURATION0),
-            "avoid_ros_namespace_conventions": False,
-        }
-    ]
-    return yaml.safe_dump(prof, default_flow_style=False, sort_keys=False).strip()
-
-
-LATCHED_TOPICS = frozenset({"/tf_static"})
 
 
 @dataclass

@@ -1,8 +1,10 @@
-"""ROS 2 (humble) messages without a ROS install: exact schema texts, CDR encoding, builders.
+"""ROS 2 (humble) messages without a ROS install: type names, exact schema texts, builders.
 
 Every builder returns the message already CDR-encoded (`bytes`, little-endian, with the 4-byte
-encapsulation header), so any sink (MCAP file, live view, tee) forwards the same bytes and the
-encoding cost is paid once. Builders take int64 nanosecond stamps and `T_a_b` 4x4 poses.
+encapsulation header; see `io.cdr`), so any sink (MCAP file, live view, tee) forwards the same
+bytes and the encoding cost is paid once. Builders take int64 nanosecond stamps and `T_a_b` 4x4
+poses. Vectorised builders of high-rate streams are in `io.ros2_batch`, the calibration messages
+(CameraInfo, IMU covariances) in `io.ros2_calib`.
 
 Schema texts (`schema_text(msgtype)`) come from rosbags' bundled humble definitions: the root
 definition first, then each dependency after a line of 80 `=` and `MSG: pkg/Name`, spelled exactly
@@ -14,8 +16,8 @@ Types (canonical names, as used for MCAP schema names):
 |---|---|
 | `image` | sensor_msgs/msg/Image (mono8, or rgb8/bgr8 for HxWx3) |
 | `compressed_image` | sensor_msgs/msg/CompressedImage (png / jpeg) |
-| `camera_info` (+ `stereo_camera_infos(rig)`) | sensor_msgs/msg/CameraInfo |
-| `imu` (+ `imu_covariances(calib)`) | sensor_msgs/msg/Imu |
+| `ros2_calib.camera_info` (+ `stereo_camera_infos(rig, alpha)`) | sensor_msgs/msg/CameraInfo |
+| `imu` (+ `ros2_calib.imu_covariances(calib)`) | sensor_msgs/msg/Imu |
 | `tf_message(transforms)` with `Transform` | tf2_msgs/msg/TFMessage |
 | `pose_stamped` | geometry_msgs/msg/PoseStamped |
 | `path` | nav_msgs/msg/Path |
@@ -38,8 +40,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from eurocslam.dataset.calib import CameraCalib, ImuCalib, StereoRig
-from eurocslam.geometry import F64, rot_to_quat_wxyz, wxyz_to_xyzw
+from eurocslam.geometry import F64
+from eurocslam.io.cdr import CDR_LE_HEADER, NS_PER_SEC, CdrWriter, pose7, poses7, split_ns
 
 # message type names (MCAP schema names)
 IMAGE = "sensor_msgs/msg/Image"
@@ -58,8 +60,6 @@ FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
 FLOAT64 = "std_msgs/msg/Float64"
 STRING = "std_msgs/msg/String"
 
-CDR_LE_HEADER = b"\x00\x01\x00\x00"
-
 
 @functools.cache
 def _typestore():  # type: ignore[no-untyped-def]
@@ -73,124 +73,6 @@ def schema_text(msgtype: str) -> str:
     """The `ros2msg` schema text of `msgtype` (e.g. 'sensor_msgs/msg/Image'), root first."""
     text, _ = _typestore().generate_msgdef(msgtype, ros_version=2)
     return text
-
-
-# ---- CDR writer -------------------------------------------------------------------------------
-_I32 = struct.Struct("<i")
-_U32 = struct.Struct("<I")
-_F32 = struct.Struct("<f")
-_F64 = struct.Struct("<d")
-_TIME = struct.Struct("<iI")
-_SEC = 1_000_000_000
-
-
-def stamp_bytes(t_ns: int) -> bytes:
-    """The CDR bytes of a `builtin_interfaces/Time` (sec, nanosec), 4-aligned in a message."""
-    return _TIME.pack(*split_ns(t_ns))
-
-
-def split_ns(t_ns: int) -> tuple[int, int]:
-    """(sec, nanosec) of a ROS time from int64 nanoseconds."""
-    t = int(t_ns)
-    return t // _SEC, t % _SEC
-
-
-class CdrWriter:
-    """Little-endian XCDR1 (what ROS 2 uses) into a growing buffer. Alignment is relative to the
-    end of the 4-byte encapsulation header."""
-
-    __slots__ = ("buf",)
-
-    def __init__(self) -> None:
-        self.buf = bytearray(CDR_LE_HEADER)
-
-    def align(self, n: int) -> None:
-        pad = -(len(self.buf) - 4) % n
-        if pad:
-            self.buf += b"\x00" * pad
-
-    def u8(self, v: int) -> None:
-        self.buf.append(v & 0xFF)
-
-    def bool(self, v: bool) -> None:
-        self.buf.append(1 if v else 0)
-
-    def i32(self, v: int) -> None:
-        self.align(4)
-        self.buf += _I32.pack(v)
-
-    def u32(self, v: int) -> None:
-        self.align(4)
-        self.buf += _U32.pack(v)
-
-    def f32(self, v: float) -> None:
-        self.align(4)
-        self.buf += _F32.pack(v)
-
-    def f64(self, v: float) -> None:
-        self.align(8)
-        self.buf += _F64.pack(v)
-
-    def f64_fixed(self, values: ArrayLike, n: int) -> None:
-        """A fixed-size float64[n] array (no length prefix)."""
-        a = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
-        if a.size != n:
-            raise ValueError(f"expected {n} float64 values, got {a.size}")
-        self.align(8)
-        self.buf += a.tobytes()
-
-    def f64_seq(self, values: ArrayLike) -> None:
-        a = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
-        self.u32(a.size)
-        if a.size:
-            self.align(8)
-            self.buf += a.tobytes()
-
-    def bytes_seq(self, data: bytes | bytearray | memoryview) -> None:
-        self.u32(len(data))
-        self.buf += data
-
-    def string(self, s: str) -> None:
-        b = s.encode()
-        self.u32(len(b) + 1)
-        self.buf += b
-        self.buf.append(0)
-
-    def time(self, t_ns: int) -> None:
-        self.align(4)
-        self.buf += _TIME.pack(*split_ns(t_ns))
-
-    def header(self, t_ns: int, frame_id: str) -> None:
-        self.time(t_ns)
-        self.string(frame_id)
-
-    def xyz(self, v: ArrayLike) -> None:
-        self.f64_fixed(v, 3)
-
-    def pose(self, T: F64) -> None:
-        """geometry_msgs/Pose from a 4x4 transform: position then quaternion xyzw."""
-        self.f64_fixed(pose7(T), 7)
-
-    def color(self, rgba: Sequence[float]) -> None:
-        self.align(4)
-        self.buf += struct.pack("<4f", *rgba)
-
-    def getvalue(self) -> bytes:
-        return bytes(self.buf)
-
-
-def pose7(T: ArrayLike) -> F64:
-    """[x, y, z, qx, qy, qz, qw] of a 4x4 transform (quaternion with w >= 0)."""
-    T = np.asarray(T, dtype=np.float64)
-    q = wxyz_to_xyzw(rot_to_quat_wxyz(T[:3, :3]))
-    return np.concatenate([T[:3, 3], q])
-
-
-def poses7(T: ArrayLike) -> F64:
-    """(N, 7) [x, y, z, qx, qy, qz, qw] of (N, 4, 4) transforms (vectorised)."""
-    T = np.asarray(T, dtype=np.float64)
-    q = wxyz_to_xyzw(rot_to_quat_wxyz(T[:, :3, :3]))
-    return np.concatenate([T[:, :3, 3], q], axis=1)
 
 
 # ---- sensor_msgs ------------------------------------------------------------------------------
@@ -225,81 +107,6 @@ def compressed_image(t_ns: int, frame_id: str, fmt: str, data: bytes) -> bytes:
     out.string(fmt)
     out.bytes_seq(data)
     return out.getvalue()
-
-
-@dataclass(frozen=True)
-class CameraInfoData:
-    """The static part of a sensor_msgs/CameraInfo (everything but the header)."""
-
-    width: int
-    height: int
-    distortion_model: str
-    D: F64
-    K: F64  # 3x3
-    R: F64  # 3x3 rectification rotation
-    P: F64  # 3x4 projection of the rectified camera
-
-
-def stereo_camera_infos(rig: StereoRig) -> tuple[CameraInfoData, CameraInfoData]:
-    """CameraInfo for cam0 and cam1: K, D (plumb_bob) and R/P from `cv2.stereoRectify` of the
-    rig (zero disparity at infinity, alpha 0). cam1's P[0, 3] = -fx' * baseline, as in ROS."""
-    import cv2
-
-    c0, c1 = rig.cam0, rig.cam1
-    T_cam1_cam0 = rig.T_cam1_cam0
-    R1, R2, P1, P2, _, _, _ = cv2.stereoRectify(
-        c0.K,
-        _plumb_bob(c0),
-        c1.K,
-        _plumb_bob(c1),
-        (c0.width, c0.height),
-        T_cam1_cam0[:3, :3].copy(),
-        T_cam1_cam0[:3, 3].reshape(3, 1).copy(),
-        flags=cv2.CALIB_ZERO_DISPARITY,
-        alpha=0.0,
-    )
-    return _info(c0, R1, P1), _info(c1, R2, P2)
-
-
-def _plumb_bob(c: CameraCalib) -> F64:
-    d = np.zeros(5)
-    d[: len(c.distortion)] = c.distortion
-    return d
-
-
-def _info(c: CameraCalib, R: F64, P: F64) -> CameraInfoData:
-    return CameraInfoData(
-        c.width,
-        c.height,
-        "plumb_bob",
-        _plumb_bob(c),
-        c.K.copy(),
-        np.asarray(R, dtype=np.float64),
-        np.asarray(P, dtype=np.float64),
-    )
-
-
-def camera_info(t_ns: int, frame_id: str, info: CameraInfoData) -> bytes:
-    out = CdrWriter()
-    out.header(t_ns, frame_id)
-    out.u32(info.height)
-    out.u32(info.width)
-    out.string(info.distortion_model)
-    out.f64_seq(info.D)
-    out.f64_fixed(info.K, 9)
-    out.f64_fixed(info.R, 9)
-    out.f64_fixed(info.P, 12)
-    out.u32(0)  # binning_x
-    out.u32(0)  # binning_y
-    for _ in range(4):  # roi: x_offset, y_offset, height, width (all 0 = full image)
-        out.u32(0)
-    out.bool(False)  # roi.do_rectify
-    return out.getvalue()
-
-
-def imu_covariances(calib: ImuCalib) -> tuple[F64, F64]:
-    """Diagonal 3x3 gyro and accel covariances of one sample: density**2 / dt (= * rate_hz)."""
-    return (np.eye(3) * calib.discrete_gyro_variance(), np.eye(3) * calib.discrete_accel_variance())
 
 
 @functools.cache
@@ -350,97 +157,6 @@ def imu(
         a[2],
         *ac,
     )
-
-
-# ---- batches of fixed-layout messages (high-rate streams: IMU, ground truth) -----------------
-def _header_fields(frame_id: str, start: int) -> tuple[list[tuple[str, str]], int]:
-    """dtype fields of a Header (stamp + frame_id) starting at CDR offset `start` (a multiple of
-    4, relative to the end of the encapsulation header); returns the fields and the end offset."""
-    fid = frame_id.encode() + b"\x00"
-    fields = [("sec", "<i4"), ("nsec", "<u4"), ("flen", "<u4"), ("fid", f"S{len(fid)}")]
-    return fields, start + 12 + len(fid)
-
-
-def _pad(fields: list[tuple[str, str]], off: int, align: int, name: str) -> int:
-    pad = -off % align
-    if pad:
-        fields.append((name, f"V{pad}"))
-    return off + pad
-
-
-def _split(rows: np.ndarray) -> list[bytes]:
-    buf = rows.tobytes()
-    n = rows.dtype.itemsize
-    return [buf[i : i + n] for i in range(0, len(buf), n)]
-
-
-def _fill_header(rows: np.ndarray, t_ns: NDArray[np.int64], frame_id: str) -> None:
-    rows["encap"] = CDR_LE_HEADER
-    rows["sec"] = t_ns // _SEC
-    rows["nsec"] = t_ns % _SEC
-    rows["flen"] = len(frame_id.encode()) + 1
-    rows["fid"] = frame_id.encode()
-
-
-def imu_batch(
-    t_ns: ArrayLike,
-    frame_id: str,
-    gyro: ArrayLike,
-    accel: ArrayLike,
-    gyro_cov: F64,
-    accel_cov: F64,
-) -> list[bytes]:
-    """`imu(...)` for N samples at once (vectorised; identical bytes)."""
-    t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
-    fields, off = _header_fields(frame_id, 0)
-    fields = [("encap", "S4"), *fields]
-    _pad(fields, off, 8, "pad")
-    fields.append(("v", "<f8", (37,)))  # type: ignore[arg-type]
-    rows = np.zeros(t.size, dtype=np.dtype(fields))
-    _fill_header(rows, t, frame_id)
-    v = np.zeros((t.size, 37))
-    v[:, 3] = 1.0  # orientation w
-    v[:, 4] = -1.0  # orientation_covariance[0]: no orientation
-    v[:, 13:16] = np.asarray(gyro, dtype=np.float64).reshape(-1, 3)
-    v[:, 16:25] = np.asarray(gyro_cov, dtype=np.float64).reshape(9)
-    v[:, 25:28] = np.asarray(accel, dtype=np.float64).reshape(-1, 3)
-    v[:, 28:37] = np.asarray(accel_cov, dtype=np.float64).reshape(9)
-    rows["v"] = v
-    return _split(rows)
-
-
-def pose_stamped_batch(t_ns: ArrayLike, frame_id: str, poses7: ArrayLike) -> list[bytes]:
-    """`pose_stamped` for N poses given as (N, 7) [x y z qx qy qz qw] (vectorised)."""
-    t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
-    fields, off = _header_fields(frame_id, 0)
-    fields = [("encap", "S4"), *fields]
-    _pad(fields, off, 8, "pad")
-    fields.append(("pose", "<f8", (7,)))  # type: ignore[arg-type]
-    rows = np.zeros(t.size, dtype=np.dtype(fields))
-    _fill_header(rows, t, frame_id)
-    rows["pose"] = np.asarray(poses7, dtype=np.float64).reshape(-1, 7)
-    return _split(rows)
-
-
-def tf_batch(t_ns: ArrayLike, parent: str, child: str, poses7: ArrayLike) -> list[bytes]:
-    """N TFMessages, each holding one transform parent -> child given as a (N, 7) row
-    [x y z qx qy qz qw] (vectorised; e.g. a ground-truth pose stream on /tf)."""
-    t = np.asarray(t_ns, dtype=np.int64).reshape(-1)
-    hdr, off = _header_fields(parent, 4)
-    fields = [("encap", "S4"), ("count", "<u4"), *hdr]
-    off = _pad(fields, off, 4, "pad0")
-    cid = child.encode() + b"\x00"
-    fields += [("clen", "<u4"), ("cid", f"S{len(cid)}")]
-    off += 4 + len(cid)
-    _pad(fields, off, 8, "pad1")
-    fields.append(("pose", "<f8", (7,)))  # type: ignore[arg-type]
-    rows = np.zeros(t.size, dtype=np.dtype(fields))
-    _fill_header(rows, t, parent)
-    rows["count"] = 1
-    rows["clen"] = len(cid)
-    rows["cid"] = child.encode()
-    rows["pose"] = np.asarray(poses7, dtype=np.float64).reshape(-1, 7)
-    return _split(rows)
 
 
 def point_cloud2(
@@ -543,8 +259,8 @@ def path(t_ns: int, frame_id: str, stamps_ns: ArrayLike, poses: ArrayLike) -> by
             + [("pose", "<f8", (7,))]
         )
         rows = np.zeros(st.size - 1, dtype=dt)
-        rows["sec"] = st[1:] // _SEC
-        rows["nsec"] = st[1:] % _SEC
+        rows["sec"] = st[1:] // NS_PER_SEC
+        rows["nsec"] = st[1:] % NS_PER_SEC
         rows["len"] = len(fid)
         rows["fid"] = fid
         rows["pose"] = p[1:]

@@ -45,7 +45,7 @@ import numpy as np
 from eurocslam.dataset.asl import read_image
 from eurocslam.dataset.types import SequenceSource, StereoFrame
 from eurocslam.errors import OutputError
-from eurocslam.io import ros2
+from eurocslam.io import ros2, ros2_batch, ros2_calib
 from eurocslam.io.sink import Sink
 
 IMAGE_MODES = ("raw", "png", "jpeg")
@@ -83,7 +83,9 @@ def all_topics(mode: str = "raw") -> tuple[str, ...]:
 @dataclass(frozen=True)
 class StreamOptions:
     """`topics`: None for all, else a subset of `all_topics(images)` (in png/jpeg mode
-    '/camN/image_raw' also selects '/camN/image_raw/compressed'). Times are int64 ns, inclusive."""
+    '/camN/image_raw' also selects '/camN/image_raw/compressed'). Times are int64 ns, inclusive.
+    `rectify_alpha`: the stereo rectification the CameraInfo R/P describe (a SLAM run passes the
+    frontend's `rectify_alpha`, so they match the images it tracked)."""
 
     topics: frozenset[str] | None = None
     images: str = "raw"
@@ -92,6 +94,7 @@ class StreamOptions:
     t_end_ns: int | None = None
     gt_path_period_ns: int = 1_000_000_000
     gt_path_pose_period_ns: int = 100_000_000
+    rectify_alpha: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -143,8 +146,10 @@ class SensorStreams:
         self._lo, self._hi = int(lo), int(hi)
 
         rig = source.rig
-        self.infos = dict(zip(CAMS, ros2.stereo_camera_infos(rig), strict=True))
-        self.gyro_cov, self.accel_cov = ros2.imu_covariances(rig.imu)
+        self.infos = dict(
+            zip(CAMS, ros2_calib.stereo_camera_infos(rig, opt.rectify_alpha), strict=True)
+        )
+        self.gyro_cov, self.accel_cov = ros2_calib.imu_covariances(rig.imu)
         self.static_transforms = [
             (FRAME_BODY, "imu0", rig.imu.T_body_imu),
             (FRAME_BODY, "cam0", rig.cam0.T_body_cam),
@@ -291,7 +296,7 @@ class SensorStreams:
                     f"/{cam}/camera_info",
                     ros2.CAMERA_INFO,
                     t,
-                    ros2.camera_info(t, cam, self.infos[cam]),
+                    ros2_calib.camera_info(t, cam, self.infos[cam]),
                 )
 
     def write_until(self, sink: Sink, t_ns: int) -> None:
@@ -325,7 +330,7 @@ class SensorStreams:
         l1 = int(np.searchsorted(self._le_t, t_ns, "right"))
         self._i_imu, self._i_gt, self._i_le = max(i0, i1), max(g0, g1), max(l0, l1)
         imu_msgs = (
-            ros2.imu_batch(
+            ros2_batch.imu_batch(
                 self._imu_t[i0:i1],
                 "imu0",
                 self._imu_g[i0:i1],
@@ -338,12 +343,12 @@ class SensorStreams:
         )
         gt_t, gt_p = self._gt_t[g0:g1], self._gt_pose7[g0:g1]
         pose_msgs = (
-            ros2.pose_stamped_batch(gt_t, FRAME_GT_WORLD, gt_p)
+            ros2_batch.pose_stamped_batch(gt_t, FRAME_GT_WORLD, gt_p)
             if g1 > g0 and GT_POSE in self.topics
             else []
         )
         tf_msgs = (
-            ros2.tf_batch(gt_t, FRAME_GT_WORLD, FRAME_GT_BODY, gt_p)
+            ros2_batch.tf_batch(gt_t, FRAME_GT_WORLD, FRAME_GT_BODY, gt_p)
             if g1 > g0 and TF in self.topics
             else []
         )

@@ -1,0 +1,123 @@
+"""The rectified stereo camera model, shared by the frontend, the backend and the MCAP output.
+
+`rectify_stereo(rig, alpha)` is the one place the rig is rectified (`cv2.stereoRectify`, zero
+disparity at infinity): it rotates both cameras to a common orientation (`rect0`, `rect1`) with
+one pinhole matrix; rect1 sits at +baseline along rect0's x axis. The frontend rectifies its
+images with it and the CameraInfo messages publish its R and P, so both always agree.
+
+`RectifiedStereo` is the geometry the rest of the system works in: stereo measurements
+(uL, uR, v) are rectified pixel coordinates, `triangulate_rect` / `project_rect` map them to and
+from points in rect0, and the backend uses `T_body_rect0` as its camera extrinsic.
+`bucket_select` spreads keypoints over an image grid (feature extraction and the backend's
+choice of landmarks both use it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from eurocslam.dataset.calib import StereoRig
+from eurocslam.geometry import F64, make_T
+
+
+@dataclass(frozen=True)
+class RectifiedStereo:
+    """Rectified stereo geometry: identical pinhole intrinsics for both cameras."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline: float  # metres, rect1 = rect0 translated by +baseline along x
+    width: int
+    height: int
+    T_body_rect0: F64  # 4x4: rectified cam0 frame -> body (IMU) frame
+
+
+@dataclass(frozen=True)
+class StereoRectification:
+    """The result of rectifying a rig with `alpha` (0: only valid pixels, 1: all pixels).
+
+    `R_rect0_cam0` / `R_rect1_cam1` rotate raw camera rays into the rectified frames (ROS's
+    CameraInfo R); `P0` / `P1` are the 3x4 projections of the rectified cameras (CameraInfo P;
+    P1[0, 3] = -fx * baseline)."""
+
+    alpha: float
+    R_rect0_cam0: F64
+    R_rect1_cam1: F64
+    P0: F64
+    P1: F64
+    geometry: RectifiedStereo
+
+
+def rectify_stereo(rig: StereoRig, alpha: float = 0.0) -> StereoRectification:
+    """Rectify the stereo pair of `rig` (zero disparity at infinity) with `cv2.stereoRectify`."""
+    c0, c1 = rig.cam0, rig.cam1
+    T_cam1_cam0 = rig.T_cam1_cam0
+    r1, r2, p1, p2, _, _, _ = cv2.stereoRectify(
+        c0.K,
+        c0.D,
+        c1.K,
+        c1.D,
+        (c0.width, c0.height),
+        T_cam1_cam0[:3, :3].copy(),
+        T_cam1_cam0[:3, 3].reshape(3, 1).copy(),
+        flags=cv2.CALIB_ZERO_DISPARITY,
+        alpha=alpha,
+    )
+    # float64 already (asarray returns the same arrays); typed for the checker
+    R1, R2 = np.asarray(r1, dtype=np.float64), np.asarray(r2, dtype=np.float64)
+    P1, P2 = np.asarray(p1, dtype=np.float64), np.asarray(p2, dtype=np.float64)
+    geometry = RectifiedStereo(
+        fx=float(P1[0, 0]),
+        fy=float(P1[1, 1]),
+        cx=float(P1[0, 2]),
+        cy=float(P1[1, 2]),
+        baseline=float(-P2[0, 3] / P2[0, 0]),
+        width=c0.width,
+        height=c0.height,
+        T_body_rect0=c0.T_body_cam @ make_T(R1.T, np.zeros(3)),
+    )
+    return StereoRectification(float(alpha), R1, R2, P1, P2, geometry)
+
+
+def triangulate_rect(uL: F64, uR: F64, v: F64, geom: RectifiedStereo) -> F64:
+    """Points (N, 3) in the rect0 frame from rectified stereo measurements."""
+    d = np.asarray(uL, dtype=np.float64) - np.asarray(uR, dtype=np.float64)
+    z = geom.fx * geom.baseline / d
+    x = (np.asarray(uL) - geom.cx) * z / geom.fx
+    y = (np.asarray(v) - geom.cy) * z / geom.fy
+    return np.column_stack([x, y, z])
+
+
+def project_rect(p_rect0: F64, geom: RectifiedStereo) -> F64:
+    """Stereo measurements (N, 3) = (uL, uR, v) of points (N, 3) in the rect0 frame."""
+    p = np.asarray(p_rect0, dtype=np.float64)
+    inv_z = 1.0 / p[:, 2]
+    uL = geom.fx * p[:, 0] * inv_z + geom.cx
+    uR = geom.fx * (p[:, 0] - geom.baseline) * inv_z + geom.cx
+    v = geom.fy * p[:, 1] * inv_z + geom.cy
+    return np.column_stack([uL, uR, v])
+
+
+def bucket_select(
+    uv: F64, response: F64, n: int, width: int, height: int, cols: int, rows: int
+) -> NDArray[np.intp]:
+    """Indices of at most `n` keypoints spread over a cols x rows grid, strongest first per cell."""
+    if uv.shape[0] <= n:
+        return np.argsort(-response, kind="stable")
+    cx = np.clip((uv[:, 0] * cols / width).astype(np.int64), 0, cols - 1)
+    cy = np.clip((uv[:, 1] * rows / height).astype(np.int64), 0, rows - 1)
+    cell = cy * cols + cx
+    # sort by cell, then by descending response; rank inside the cell
+    order = np.lexsort((-response, cell))
+    cell_sorted = cell[order]
+    first = np.searchsorted(cell_sorted, cell_sorted, side="left")
+    rank = np.arange(order.size) - first
+    # round-robin: rank 0 of every cell (strongest first), then rank 1, ...
+    pick = np.lexsort((-response[order], rank))
+    return order[pick[:n]]
