@@ -35,7 +35,7 @@ def progress(
     )
 
 
-def bar(*, total: int | None, desc: str, unit: str = "it", enabled: bool | None = None) -> tqdm:
+def bar(*, total: float | None, desc: str, unit: str = "it", enabled: bool | None = None) -> tqdm:
     """A manual progress bar (`update`, `set_postfix`) for loops with live figures."""
     if enabled is None:
         enabled = sys.stderr.isatty()

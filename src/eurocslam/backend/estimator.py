@@ -83,11 +83,11 @@ class KeyframeEstimator:
         p.setRelinearizeThreshold(b.relinearize_threshold)
         p.relinearizeSkip = b.relinearize_skip
         p.findUnusedFactorSlots = True
+        self._smoother: gtsam.IncrementalFixedLagSmoother | None = None
+        self._isam: gtsam.ISAM2 | None = None
         if b.smoother == "fixed_lag":
             self._smoother = gtsam.IncrementalFixedLagSmoother(b.lag_s, p)
-            self._isam = None
         else:
-            self._smoother = None
             self._isam = gtsam.ISAM2(p)
 
     def _t(self, t_ns: int) -> float:
@@ -230,6 +230,7 @@ class KeyframeEstimator:
         stamps: dict[int, float] = {}
         dt = (t_ns - st.t_ns) * 1e-9
         if imu_link:
+            assert self._pim is not None
             graph.add(
                 gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self._pim)
             )
@@ -416,7 +417,7 @@ class KeyframeEstimator:
         # landmarks still in the window, read in one call (keys sort 'l' before 'v': the
         # landmarks are the first rows of extractPoint3, which also returns the velocities)
         lidx = landmark_indices(est.keys())
-        pts = np.asarray(gtsam.utilities.extractPoint3(est))[: lidx.size] if lidx.size else None
+        pts = np.asarray(gtsam.utilities.extractPoint3(est))[: lidx.size]
         self._lms.set_window(lidx, pts)
 
     def _read_state(self, k: int, t_ns: int) -> KeyframeUpdate:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -31,7 +32,7 @@ class SegmentGraph:
     """Everything the final batch of one segment needs, filled by the smoother."""
 
     graph: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)
-    values: dict[int, object] = field(default_factory=dict)  # key -> latest estimate
+    values: dict[int, Any] = field(default_factory=dict)  # key -> latest estimate (gtsam)
     kf_times: list[int] = field(default_factory=list)
     kf_index0: int = 0
     # stereo observations beyond the smoother's cap, for the final batch:

@@ -295,7 +295,7 @@ def dynamic_init(
     if np.linalg.norm(ba) > 1.0:
         ba = np.zeros(3)  # not observable enough: leave it to the smoother
     # world frame: gravity along -z
-    R_world_vo = rotation_between(g_dir, np.array([0.0, 0.0, -1.0]))
+    R_world_vo = rotation_between(np.asarray(g_dir, dtype=np.float64), np.array([0.0, 0.0, -1.0]))
     window = []
     for k in range(n):
         T_w = make_T(R_world_vo @ R[k], R_world_vo @ p[k])

@@ -24,6 +24,11 @@ from eurocslam.frontend.stereo import StereoRectifier
 from eurocslam.geometry import F64
 
 
+def pyramid_scales(config: FrontendConfig) -> F64:
+    """The scale of each ORB pyramid level (1 at full resolution)."""
+    return np.asarray(config.orb_scale_factor ** np.arange(config.orb_levels), dtype=np.float64)
+
+
 def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:
     """Why an image cannot be tracked ('missing', 'black', 'saturated', 'blank'), or None."""
     if img is None:
@@ -53,6 +58,10 @@ class FrameFeatures:
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
+def _shape(img: U8 | None) -> tuple[int, ...]:
+    return () if img is None else img.shape
+
+
 def _no_stereo() -> StereoMatches:
     return StereoMatches(np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.intp))
 
@@ -64,7 +73,7 @@ class Extractor:
         self.rig = rig
         self.config = config
         self.rectifier = StereoRectifier(rig, config.rectify_alpha)
-        self.scale: F64 = config.orb_scale_factor ** np.arange(config.orb_levels)
+        self.scale = pyramid_scales(config)
         self._local = threading.local()
 
     @property
@@ -86,7 +95,7 @@ class Extractor:
         problem = image_problem(frame.left, c) or image_problem(frame.right, c)
         g = self.geometry
         if problem is None and (
-            frame.left.shape != (g.height, g.width) or frame.right.shape != (g.height, g.width)
+            _shape(frame.left) != (g.height, g.width) or _shape(frame.right) != (g.height, g.width)
         ):
             problem = "size"
         return problem
@@ -94,9 +103,9 @@ class Extractor:
     def extract(self, frame: StereoFrame) -> FrameFeatures:
         """Rectify, ORB on both images, stereo matching."""
         problem = self.frame_problem(frame)
-        if problem is not None:
+        if problem is not None or frame.left is None or frame.right is None:
             e = Features.empty()
-            return FrameFeatures(frame.t_ns, problem, e, e, _no_stereo(), {})
+            return FrameFeatures(frame.t_ns, problem or "missing", e, e, _no_stereo(), {})
         t0 = time.perf_counter()
         left = self.rectifier.rectify_left(frame.left)
         right = self.rectifier.rectify_right(frame.right)

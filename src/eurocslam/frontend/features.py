@@ -10,6 +10,7 @@ saves).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from operator import attrgetter
 
@@ -53,6 +54,12 @@ def hamming(a: NDArray[np.uint8], b: NDArray[np.uint8]) -> NDArray[np.int32]:
     return np.bitwise_count(x).sum(axis=-1, dtype=np.int32)
 
 
+def _points(kps: Sequence[cv2.KeyPoint]) -> F64:
+    """Keypoint positions (N, 2) as float64 pixels."""
+    uv = cv2.KeyPoint_convert(kps)  # type: ignore[attr-defined]
+    return np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+
+
 class OrbExtractor:
     """Grid-bucketed ORB. One instance per thread (cv2.ORB objects are not shared)."""
 
@@ -63,7 +70,7 @@ class OrbExtractor:
         n_cand = max(config.n_features, int(config.n_features * config.orb_candidates_factor))
 
         def orb(fast_threshold: int) -> cv2.ORB:
-            return cv2.ORB_create(
+            return cv2.ORB_create(  # type: ignore[attr-defined]
                 nfeatures=n_cand,
                 scaleFactor=config.orb_scale_factor,
                 nlevels=config.orb_levels,
@@ -88,7 +95,7 @@ class OrbExtractor:
             kps = self._orb_low.detect(img, None)  # low texture: a lower FAST threshold
         if not kps:
             return Features.empty()
-        uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)
+        uv = _points(kps)
         resp = np.array(list(map(_RESPONSE, kps)), dtype=np.float64)
         keep = bucket_select(
             uv, resp, c.n_features, self.width, self.height, c.grid_cols, c.grid_rows
@@ -97,7 +104,7 @@ class OrbExtractor:
         if desc is None or not kept:
             return Features.empty()
         return Features(
-            uv=cv2.KeyPoint_convert(kept).astype(np.float64).reshape(-1, 2),
+            uv=_points(kept),
             octave=np.array([k.octave for k in kept], dtype=np.int32),
             response=np.array(list(map(_RESPONSE, kept)), dtype=np.float64),
             desc=np.ascontiguousarray(desc, dtype=np.uint8),

@@ -42,10 +42,10 @@ class StereoRectifier:
         return self._size
 
     def rectify_left(self, img: U8) -> U8:
-        return cv2.remap(img, self._map0[0], self._map0[1], cv2.INTER_LINEAR)
+        return np.asarray(cv2.remap(img, self._map0[0], self._map0[1], cv2.INTER_LINEAR))
 
     def rectify_right(self, img: U8) -> U8:
-        return cv2.remap(img, self._map1[0], self._map1[1], cv2.INTER_LINEAR)
+        return np.asarray(cv2.remap(img, self._map1[0], self._map1[1], cv2.INTER_LINEAR))
 
     def raw_to_rect0(self, uv_raw: F64) -> F64:
         """Raw (distorted) cam0 pixels (N, 2) -> rectified rect0 pixels (N, 2)."""
@@ -54,7 +54,7 @@ class StereoRectifier:
         if pts.shape[0] == 0:
             return np.zeros((0, 2))
         out = undistort_points(pts, c0.K, c0.D, self.R_rect0_cam0, self.P0)
-        return out.reshape(-1, 2)
+        return np.asarray(out.reshape(-1, 2), dtype=np.float64)
 
     def rect0_to_raw(self, uv_rect: F64) -> F64:
         """Rectified rect0 pixels (N, 2) -> raw (distorted) cam0 pixels (N, 2)."""
@@ -68,11 +68,11 @@ class StereoRectifier:
         rays_cam0 = rays_rect @ self.R_rect0_cam0  # R^T applied to row vectors
         c0 = self.rig.cam0
         out, _ = cv2.projectPoints(rays_cam0, np.zeros(3), np.zeros(3), c0.K, c0.D)
-        return out.reshape(-1, 2)
+        return np.asarray(out.reshape(-1, 2), dtype=np.float64)
 
 
 def undistort_points(pts: F64, K: F64, D: F64, R: F64, P: F64) -> F64:
     """`cv2.undistortPoints` iterated to convergence (its default 5 iterations leave up to
     0.2 px in EuRoC's image corners)."""
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9)
-    return cv2.undistortPoints(pts, K, D, R=R, P=P, criteria=crit)
+    return np.asarray(cv2.undistortPoints(pts, K, D, R=R, P=P, criteria=crit), dtype=np.float64)

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from eurocslam.camera import RectifiedStereo, triangulate_rect
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.extraction import FrameFeatures
+from eurocslam.frontend.extraction import FrameFeatures, pyramid_scales
 from eurocslam.frontend.features import Features
 from eurocslam.frontend.motion import VelocityModel
 from eurocslam.frontend.stereo import StereoRectifier
@@ -53,7 +53,7 @@ class StereoTracker:
         self.config.validate()
         self._rectifier = rectifier
         self._T_body_rect0 = rectifier.geometry.T_body_rect0
-        self.scale = self.config.orb_scale_factor ** np.arange(self.config.orb_levels)
+        self.scale = pyramid_scales(self.config)
         self.map = LocalMap(first_landmark_id, self.config.archive_max_landmarks)
         self._T_init = None if T_world_body_init is None else np.asarray(T_world_body_init, float)
         self._motion = VelocityModel(

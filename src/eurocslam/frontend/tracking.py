@@ -7,6 +7,7 @@ projection needs; `StereoTracker` converts to and from `T_world_body`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -132,7 +133,8 @@ class LocalMap:
         )
         return ids
 
-    def keep(self, mask: NDArray[np.bool_]) -> None:
+    def keep(self, mask: NDArray[np.bool_] | NDArray[np.intp]) -> None:
+        """Keep the rows `mask` selects (a boolean mask or row indices, in their order)."""
         for name in _FIELDS:
             setattr(self, name, getattr(self, name)[mask])
 
@@ -351,7 +353,7 @@ def optimize_pose(
     st = stereo.astype(np.float64)
     xyz_t = np.ascontiguousarray(xyz.T)
 
-    def residuals(T: F64) -> tuple[F64, ...]:
+    def residuals(T: F64) -> tuple[Any, ...]:
         X, Y, Z = T[:3, :3] @ xyz_t + T[:3, 3:4]
         front = Z > 0.05
         iz = 1.0 / np.where(front, Z, 1.0)
@@ -433,7 +435,7 @@ def pnp_ransac(
     if n < 6:
         return None, inl
     K = np.array([[geom.fx, 0, geom.cx], [0, geom.fy, geom.cy], [0, 0, 1.0]])
-    kwargs = {}
+    kwargs: dict[str, Any] = {}
     if T_guess is not None:
         rvec0, _ = cv2.Rodrigues(T_guess[:3, :3])
         kwargs = {"useExtrinsicGuess": True, "rvec": rvec0, "tvec": T_guess[:3, 3].reshape(3, 1)}
@@ -455,4 +457,4 @@ def pnp_ransac(
         return None, inl
     inl[idx.reshape(-1)] = True
     R, _ = cv2.Rodrigues(rvec)
-    return make_T(R, tvec.reshape(3)), inl
+    return make_T(np.asarray(R, np.float64), np.asarray(tvec, np.float64).reshape(3)), inl

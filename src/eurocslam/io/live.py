@@ -120,7 +120,7 @@ class LiveSink:
                 host="127.0.0.1",
                 port=0,
                 capabilities=[Capability.Time],
-                server_listener=_Listener(self),
+                server_listener=_Listener(self),  # type: ignore[arg-type]
                 context=self._ctx,
                 playback_time_range=playback_range_ns,
             )

@@ -61,7 +61,7 @@ def _use_zstd_level(level: int) -> None:
     if isinstance(current, _ZstdAtLevel):
         current.level = level
     else:
-        mw.zstandard = _ZstdAtLevel(current, level)  # type: ignore[attr-defined]
+        mw.zstandard = _ZstdAtLevel(current, level)  # type: ignore[attr-defined,assignment]
 
 
 @dataclass

@@ -96,7 +96,7 @@ def image(t_ns: int, frame_id: str, img: NDArray[np.uint8], encoding: str | None
     out.string(enc)
     out.u8(0)  # is_bigendian
     out.u32(w * c)  # step
-    out.bytes_seq(memoryview(img).cast("B"))
+    out.bytes_seq(memoryview(img).cast("B"))  # type: ignore[arg-type]
     return out.getvalue()
 
 
