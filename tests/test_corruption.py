@@ -342,6 +342,15 @@ def m_cam_integer_seconds(m: Path) -> None:
     _edit(m / "cam0" / "data.csv", conv)
 
 
+def m_imu_integer_seconds(m: Path) -> None:
+    def conv(ls: list[str]) -> list[str]:
+        return [ls[0]] + [
+            f"{int(ln.split(',')[0]) // 10**9},{ln.split(',', 1)[1]}" for ln in ls[1:]
+        ]
+
+    _edit(_imu(m), conv)
+
+
 def m_cam1_offset(m: Path) -> None:
     def conv(ls: list[str]) -> list[str]:
         return [ls[0]] + [f"{int(ln.split(',')[0]) + 1000},{ln.split(',')[1]}" for ln in ls[1:]]
@@ -431,6 +440,10 @@ CASES: dict[str, Case] = {
     "cam timestamps in integer seconds": Case(m_cam_integer_seconds, ERROR, "(timestamps in "
                                               "seconds?)", "cam0/data.csv",
                                               "raises:seconds vs nanoseconds"),
+    # the reader and the doctor blame the same file: the one the other streams disagree with
+    "imu timestamps in integer seconds": Case(m_imu_integer_seconds, ERROR, "(timestamps in "
+                                              "seconds?)", "imu0/data.csv",
+                                              "raises:imu0/data.csv: timestamps are ~1e9 but"),
     "cam1 clock offset": Case(m_cam1_offset, ERROR, "share no timestamp", "cam1/data.csv",
                               "raises:share no timestamp"),
     "rate mismatch": Case(m_rate_mismatch, WARNING, "differs from sensor.yaml rate_hz",

@@ -24,8 +24,7 @@ from eurocslam.io.mcap_writer import McapSink, WriteSummary
 from eurocslam.io.sensor_streams import EncodedFrame, SensorStreams, StreamOptions
 from eurocslam.io.sink import ThreadedSink
 from eurocslam.progress import bar
-
-ABSOLUTE_NS_THRESHOLD = 10**15  # a time this large is an absolute timestamp in ns, not seconds
+from eurocslam.timebase import resolve_time
 
 
 @dataclass(frozen=True)
@@ -74,15 +73,6 @@ def sequence_start_ns(source: SequenceSource) -> int:
     if not cands:
         raise OutputError(f"{source.name}: the sequence holds no timestamps")
     return min(cands)
-
-
-def resolve_time(value: float | None, t_ref_ns: int) -> int | None:
-    """Seconds relative to `t_ref_ns`, or an absolute nanosecond timestamp when >= 1e15."""
-    if value is None:
-        return None
-    if abs(value) >= ABSOLUTE_NS_THRESHOLD:
-        return int(value)
-    return t_ref_ns + round(value * 1e9)
 
 
 def _encoded_frames(

@@ -102,7 +102,8 @@ def run_slam(
 ) -> RunResult:
     """`extra_sinks` (e.g. the live view's `io.live.LiveSink`) receive every message that goes
     into run.mcap, in the same order, from the pipeline thread; the caller closes them."""
-    from eurocslam.convert import resolve_time, sequence_start_ns
+    from eurocslam.convert import sequence_start_ns
+    from eurocslam.timebase import resolve_time
 
     opt = options or RunOptions()
     cfg = resolve_mode(cfg or RunConfig(), len(source.imu) > 0, source.name)

@@ -35,6 +35,7 @@ from eurocslam.dataset.types import (
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import normalize_quat
 from eurocslam.textfile import read_text
+from eurocslam.timebase import magnitude, parse_timestamp, unit_outliers
 
 if TYPE_CHECKING:
     from eurocslam.dataset.bag import BagSequence, TopicMap
@@ -69,34 +70,6 @@ class CsvTable:
 def read_text_file(path: Path) -> str:
     """Read a CSV as text (UTF-8, BOM tolerated); errors name the file."""
     return read_text(path, DatasetError)
-
-
-def _looks_like_seconds(tok: str) -> bool:
-    try:
-        v = float(tok)
-    except ValueError:
-        return False
-    return "." in tok or "e" in tok.lower() or v < 1e12
-
-
-INT64_MAX = 2**63 - 1
-
-
-def parse_timestamp(tok: str, where: str) -> int:
-    """An integer-nanosecond timestamp in [0, 2^63); `DatasetError` naming `where` otherwise."""
-    try:
-        t = int(tok)
-    except ValueError:
-        hint = " (looks like seconds; expected integer nanoseconds)"
-        raise DatasetError(
-            f"{where}: timestamp '{tok}' is not an integer"
-            + (hint if _looks_like_seconds(tok) else "")
-        ) from None
-    if not 0 <= t <= INT64_MAX:
-        raise DatasetError(
-            f"{where}: timestamp '{tok}' is out of range (integer nanoseconds, 0 <= t < 2^63)"
-        )
-    return t
 
 
 def parse_numeric_rows(rows: list[str], ncols: int) -> tuple[I64, np.ndarray] | None:
@@ -404,19 +377,14 @@ class AslSequence:
             streams[self.mav0 / "state_groundtruth_estimate0" / "data.csv"] = self.groundtruth.t_ns
         if self.leica is not None:
             streams[self.mav0 / "leica0" / "data.csv"] = self.leica.t_ns
-        mags = {
-            p: float(np.log10(max(abs(float(np.median(t))), 1.0)))
-            for p, t in streams.items()
-            if t.size
-        }
-        ref_path = self.mav0 / "imu0" / "data.csv"
-        ref = mags[ref_path]
-        for p, m in mags.items():
-            if abs(m - ref) > 2.0:
-                raise DatasetError(
-                    f"{p}: timestamps are ~1e{m:.0f} but {ref_path} has ~1e{ref:.0f}: seconds vs "
-                    "nanoseconds mix-up? EuRoC timestamps are integer nanoseconds"
-                )
+        mags = {p: magnitude(t) for p, t in streams.items() if t.size}
+        ref_path, outliers = unit_outliers(mags, prefer=self.mav0 / "imu0" / "data.csv")
+        if outliers:
+            p, ref = outliers[0], mags[ref_path]
+            raise DatasetError(
+                f"{p}: timestamps are ~1e{mags[p]:.0f} but {ref_path} has ~1e{ref:.0f}: seconds vs "
+                "nanoseconds mix-up? EuRoC timestamps are integer nanoseconds"
+            )
 
     # ---- streams ----------------------------------------------------------------------------
     @property

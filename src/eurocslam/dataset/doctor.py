@@ -34,7 +34,6 @@ from eurocslam.dataset.asl import (
     PNG_SIGNATURE,
     decode_image,
     parse_numeric_rows,
-    parse_timestamp,
     resolve_mav0,
 )
 from eurocslam.dataset.calib import (
@@ -51,6 +50,14 @@ from eurocslam.dataset.calib import (
 )
 from eurocslam.dataset.types import I64
 from eurocslam.errors import EurocSlamError
+from eurocslam.timebase import (
+    could_be_seconds,
+    looks_like_seconds,
+    magnitude,
+    parse_timestamp,
+    unit_hint,
+    unit_outliers,
+)
 
 ERROR = "error"
 WARNING = "warning"
@@ -218,14 +225,6 @@ class _Csv:
     lines: I64  # their 1-based line numbers
     values: np.ndarray | None  # (N, ncols - 1) for numeric CSVs
     names: list[str] | None  # image file names for camera CSVs
-
-
-def _looks_like_seconds(tok: str) -> bool:
-    try:
-        float(tok)
-    except ValueError:
-        return False
-    return "." in tok or "e" in tok.lower()
 
 
 @dataclass(frozen=True)
@@ -490,7 +489,7 @@ class _Doctor:
             try:
                 ti = parse_timestamp(parts[0], "")
             except EurocSlamError:
-                kind = "seconds" if _looks_like_seconds(parts[0]) else "timestamp"
+                kind = "seconds" if looks_like_seconds(parts[0]) else "timestamp"
                 probs.setdefault(kind, _Problems()).add(no, repr(parts[0]))
                 continue
             if is_image:
@@ -589,7 +588,7 @@ class _Doctor:
                         ERROR,
                         "units",
                         f"median spacing {med:.0f} ns, but rate_hz {yaml_rate:g} means "
-                        f"{period:.0f} ns: {_unit_hint(ratio)}",
+                        f"{period:.0f} ns: {unit_hint(ratio)}",
                         path,
                     )
                     period = med
@@ -626,34 +625,25 @@ class _Doctor:
     def check_time_units(self) -> None:
         """Timestamps of different files differing by orders of magnitude: s vs ns mix-ups."""
         assert self.mav0 is not None
-        mags = {
-            n: math.log10(max(abs(float(np.median(c.t))), 1.0))
-            for n, c in self.csvs.items()
-            if c.t.size
-        }
+        mags = {n: magnitude(c.t) for n, c in self.csvs.items() if c.t.size}
         if len(mags) < 2:
             return
-
-        # the magnitude most files agree with (the IMU's on a tie)
-        def support(name: str) -> tuple[int, bool]:
-            return sum(abs(m - mags[name]) <= 2.0 for m in mags.values()), name == "imu0"
-
-        ref = mags[max(mags, key=support)]
-        for n, m in mags.items():
-            if abs(m - ref) > 2.0:
-                ratio = 10 ** (m - ref)
-                self.add(
-                    ERROR,
-                    "units",
-                    f"timestamps are ~1e{m:.0f} while the other files' are ~1e{ref:.0f} "
-                    f"({_unit_hint(ratio)}); EuRoC timestamps are integer nanoseconds",
-                    self.mav0 / STREAMS[n][0] / "data.csv",
-                )
-        if all(m < 12 for m in mags.values()):
+        ref_name, outliers = unit_outliers(mags, prefer="imu0")
+        ref = mags[ref_name]
+        for n in outliers:
+            m = mags[n]
+            self.add(
+                ERROR,
+                "units",
+                f"timestamps are ~1e{m:.0f} while the other files' are ~1e{ref:.0f} "
+                f"({unit_hint(10 ** (m - ref))}); EuRoC timestamps are integer nanoseconds",
+                self.mav0 / STREAMS[n][0] / "data.csv",
+            )
+        if could_be_seconds(mags):
             self.add(
                 INFO,
                 "units",
-                "timestamps are small (< 1e12): if these are seconds, the files are not in "
+                "timestamps are small (< 1e11): if these are seconds, the files are not in "
                 "EuRoC's nanoseconds",
             )
 
@@ -953,18 +943,6 @@ def _expect(name: str) -> str:
         "groundtruth": "timestamp, p xyz, q wxyz, v xyz, bg xyz, ba xyz",
         "leica0": "timestamp, p xyz",
     }[name]
-
-
-def _unit_hint(ratio: float) -> str:
-    """Name the unit mix-up a spacing ratio (measured / expected) suggests."""
-    e = round(math.log10(ratio) / 3) * 3 if ratio > 0 else 0
-    return {
-        -9: "timestamps in seconds?",
-        -6: "timestamps in milliseconds?",
-        -3: "timestamps in microseconds?",
-        3: "timestamps in picoseconds, or rate_hz wrong?",
-        9: "seconds and nanoseconds mixed?",
-    }.get(e, "wrong rate_hz or wrong time unit?")
 
 
 def _yaml_rate(data: dict[str, Any]) -> float:
