@@ -16,9 +16,9 @@ from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import GroundTruth, ImuData, PositionData, SkipReport, StereoFrame
 from eurocslam.eval.evaluate import evaluate
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.io.trajectory_io import Trajectory
 from eurocslam.pipeline.records import PipelineState, RunResult
 from eurocslam.pipeline.slam import SlamPipeline
+from eurocslam.trajectory import Trajectory
 
 SYNTH_S = 4.0
 

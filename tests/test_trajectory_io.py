@@ -10,7 +10,6 @@ import pytest
 from eurocslam.errors import EvalError
 from eurocslam.eval.synthetic import smooth_trajectory
 from eurocslam.io.trajectory_io import (
-    Trajectory,
     count_repeated_stamps,
     read_euroc_csv,
     read_trajectory,
@@ -19,6 +18,7 @@ from eurocslam.io.trajectory_io import (
     write_tum,
 )
 from eurocslam.timebase import ns_to_seconds_str, seconds_str_to_ns
+from eurocslam.trajectory import Trajectory
 
 
 def _traj(n: int = 50, seed: int = 0) -> Trajectory:
