@@ -17,7 +17,9 @@ import pytest
 from eurocslam.cli import main
 from eurocslam.dataset import open_sequence
 from eurocslam.dataset.asl import AslSequence
-from eurocslam.dataset.bag import BagSequence, TopicMap, write_rosbag
+from eurocslam.dataset.bag.reader import BagSequence
+from eurocslam.dataset.bag.topics import TopicMap
+from eurocslam.dataset.bag.writer import write_rosbag
 from eurocslam.dataset.calib import default_rig
 from eurocslam.dataset.types import GroundTruth
 

@@ -28,7 +28,8 @@ from asl_helpers import (
     write_lines,
 )
 from eurocslam.dataset.asl import AslSequence
-from eurocslam.dataset.doctor import ERROR, INFO, WARNING, DoctorReport, diagnose
+from eurocslam.dataset.doctor.asl_checks import diagnose
+from eurocslam.dataset.doctor.report import ERROR, INFO, WARNING, DoctorReport
 from eurocslam.errors import DatasetError
 
 N_FRAMES = 40

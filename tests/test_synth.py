@@ -276,7 +276,7 @@ def test_known_point_projects_where_it_is_drawn() -> None:
 
 # ---- the written folder ---------------------------------------------------------------------
 def test_written_sequence_reads_back_and_passes_doctor(ideal_seq: Path) -> None:
-    from eurocslam.dataset.doctor import diagnose
+    from eurocslam.dataset.doctor.asl_checks import diagnose
 
     seq = open_sequence(ideal_seq)
     assert seq.skips.total == 0
@@ -294,7 +294,7 @@ def test_written_sequence_reads_back_and_passes_doctor(ideal_seq: Path) -> None:
 
 
 def test_realistic_sequence_passes_doctor(real_seq: Path) -> None:
-    from eurocslam.dataset.doctor import diagnose
+    from eurocslam.dataset.doctor.asl_checks import diagnose
 
     report = diagnose(real_seq, full=True)
     assert report.exit_code == 0, [f.message for f in report.findings]

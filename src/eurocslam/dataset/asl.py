@@ -14,10 +14,9 @@ orders of magnitude (seconds vs nanoseconds) are refused.
 from __future__ import annotations
 
 import zlib
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -36,9 +35,6 @@ from eurocslam.errors import DatasetError
 from eurocslam.geometry import normalize_quat
 from eurocslam.textfile import read_text
 from eurocslam.timebase import magnitude, parse_timestamp, unit_outliers
-
-if TYPE_CHECKING:
-    from eurocslam.dataset.bag import BagSequence, TopicMap
 
 SENSORS = ("cam0", "cam1", "imu0", "state_groundtruth_estimate0", "leica0")
 
@@ -444,38 +440,3 @@ class AslSequence:
         if dec.converted:
             self.skips.add(f"{cam} image converted ({dec.converted})", str(path))
         return dec.image
-
-
-def open_sequence(
-    path: Path | str,
-    rig: StereoRig | None = None,
-    *,
-    calib: Path | str | None = None,
-    topics: TopicMap | Mapping[str, str] | None = None,
-    quiet: bool = False,
-) -> AslSequence | BagSequence:
-    """Open an input sequence: an EuRoC ASL folder (or its `mav0/`), a ROS 1 `.bag`, a ROS 2 bag
-    folder (`metadata.yaml`), a `.db3` or an `.mcap` (including `eurocslam convert` output).
-
-    `rig` wins over `calib` (a folder of cam0/cam1/imu0 `sensor.yaml` files); `topics` maps bag
-    topics to roles (`{"cam0": "/my/left"}`, bags only). Notes (calibration fallback, stamp
-    source) are printed on stderr unless `quiet`; they stay in the source's `notes`.
-    """
-    from eurocslam.dataset.bag import BagSequence, is_bag_path, print_notes
-
-    p = Path(path)
-    if is_bag_path(p):
-        seq = BagSequence(p, rig, calib=calib, topics=topics)
-        if not quiet:
-            print_notes(seq)
-        return seq
-    if topics:
-        raise DatasetError(f"{p}: --topic applies to ROS bags and MCAP inputs, not ASL folders")
-    if p.is_file():
-        raise DatasetError(
-            f"{p}: not a recognised input (expected an EuRoC ASL folder, a .bag, .db3 or .mcap "
-            "file, or a ROS 2 bag folder)"
-        )
-    if rig is None and calib is not None:
-        rig = load_rig(Path(calib))
-    return AslSequence(path, rig)
