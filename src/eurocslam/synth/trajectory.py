@@ -18,11 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from eurocslam.dataset.asl import read_numeric_csv
-from eurocslam.dataset.synth.spline import SplineTrajectory, fit_spline
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import F64, quat_wxyz_to_rot, rot_to_quat_wxyz
+from eurocslam.synth.fusion import fuse_imu_groundtruth
+from eurocslam.synth.kinematics import GRAVITY
+from eurocslam.synth.spline import SplineTrajectory, fit_spline
 
-GRAVITY = np.array([0.0, 0.0, -9.81])
 BUILTIN_T0_NS = 1_400_000_000_000_000_000  # a realistic epoch (2014-05-13), like EuRoC's
 
 
@@ -246,8 +247,6 @@ def _imu_spline(
     swing by 20-100 mm/s^2 within 5 s, but that fit used its own orientation, whose tilt the
     accelerometer and gyro both disagree with; a constant bias imports none of it, and what the
     real accelerometer does beyond it stays in the replica as the IMU's own error."""
-    from eurocslam.dataset.synth.fusion import fuse_imu_groundtruth
-
     t_imu, gyro, accel = imu
     m = (t_imu >= gt.t_ns[0]) & (t_imu <= gt.t_ns[-1])
     lo, hi = int(gt.t_ns[sel][0]), int(gt.t_ns[sel][-1])

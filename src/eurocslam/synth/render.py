@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 
 from eurocslam.dataset.calib import CameraCalib
-from eurocslam.dataset.synth.world import MIP_LEVELS, ST_AXES, World
 from eurocslam.geometry import F64
+from eurocslam.synth.world import MIP_LEVELS, ST_AXES, World
 
 F32 = np.float32
 NEAR = 0.02
