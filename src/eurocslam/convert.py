@@ -5,12 +5,12 @@ IMU / ground truth / leica in log-time order) -> `ThreadedSink` (chunk compressi
 in a background thread) -> `McapSink` (`out.mcap.partial`, renamed when complete).
 At most `2 * workers + 2` frames are in flight, so memory does not grow with sequence length.
 On any exception or Ctrl-C the MCAP is still finished (readable) under its `.partial` name and
-the user is told where it is.
+the user is told where it is (a logged warning).
 """
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 from collections import deque
 from collections.abc import Iterator
@@ -25,6 +25,8 @@ from eurocslam.io.sensor_streams import EncodedFrame, SensorStreams, StreamOptio
 from eurocslam.io.sink import ThreadedSink
 from eurocslam.progress import bar
 from eurocslam.timebase import resolve_time
+
+logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -173,7 +175,7 @@ def convert(
             )
         except Exception as e2:  # pragma: no cover - disk full etc.
             msg = f"stopped early; could not finish {mcap.partial}: {e2}"
-        print(f"eurocslam convert: {msg}", file=sys.stderr)
+        logger.warning("eurocslam convert: %s", msg)
         if isinstance(e, EurocSlamError | KeyboardInterrupt):
             raise
         raise OutputError(f"conversion failed: {type(e).__name__}: {e} ({msg})") from e
