@@ -17,9 +17,11 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from eurocslam.dataset.calib import StereoRig, load_rig
 from eurocslam.dataset.types import (
@@ -206,13 +208,15 @@ def decode_image_bytes(data: bytes, *, check_crc: bool = False) -> DecodedImage:
         problem = png_problem(data, check_crc)
         if problem is not None:
             return DecodedImage(None, problem)
-    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    img: NDArray[Any] | None = cv2.imdecode(
+        np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED
+    )
     if img is None:
         return DecodedImage(None, "not a decodable image")
     notes = []
     if img.ndim == 3:
         code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
-        img = cv2.cvtColor(img, code)
+        img = np.asarray(cv2.cvtColor(img, code))
         notes.append("colour to mono")
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)

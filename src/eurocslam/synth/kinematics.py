@@ -28,4 +28,5 @@ def integrate_gyro(t_ns: np.ndarray, gyro: F64, bg: F64) -> F64:
     for i in range(h.size):
         P[i + 1] = P[i] @ steps[i]
     u, _, vt = np.linalg.svd(P)
-    return u @ vt
+    R: F64 = u @ vt
+    return R

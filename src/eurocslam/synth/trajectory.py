@@ -63,7 +63,7 @@ def builtin_motion(
         raise DatasetError(f"duration {duration_s:g} s: the built-in motion needs at least 0.2 s")
     rng = np.random.default_rng([seed, 0x5EED])
     dt = 0.005
-    t = np.arange(round((duration_s + 1.0) / dt) + 1) * dt  # 1 s margin for the fit
+    t: F64 = np.asarray(np.arange(round((duration_s + 1.0) / dt) + 1) * dt, dtype=np.float64)
     rest = float(np.clip(0.08 * duration_s, 0.3, 2.0))
     hover = float(rng.uniform(1.1, 1.6))
     if duration_s >= 8.0:
@@ -98,9 +98,9 @@ def builtin_motion(
     # yaw: smooth random profile, peak rate = max_yaw_rate
     yaw = np.zeros(t.size)
     for _ in range(3):
-        f = rng.uniform(0.05, 0.25) * 2 * np.pi
-        ph = rng.uniform(0, 2 * np.pi)
-        yaw += rng.uniform(0.5, 1.0) * (np.sin(f * (t - t_loop) + ph) - np.sin(ph))
+        fy = rng.uniform(0.05, 0.25) * 2 * np.pi
+        phy = rng.uniform(0, 2 * np.pi)
+        yaw += rng.uniform(0.5, 1.0) * (np.sin(fy * (t - t_loop) + phy) - np.sin(phy))
     yaw += rng.choice([-1.0, 1.0]) * 0.3 * (t - t_loop)  # a slow overall turn
     yaw = yaw * ramp
     yaw *= max_yaw_rate / max(float(np.max(np.abs(np.gradient(yaw, dt)))), 1e-9)

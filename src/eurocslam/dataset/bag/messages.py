@@ -8,6 +8,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from eurocslam.dataset.types import U8
 from eurocslam.errors import DatasetError
@@ -79,7 +80,7 @@ def image_msg_to_mono(msg: Any, topic: str) -> U8 | None:
         img16 = np.ascontiguousarray(rows).view(dt).reshape(h, w)
         return (img16 >> 8).astype(np.uint8)
     color = np.ascontiguousarray(rows).reshape(h, w, bpp)
-    return cv2.cvtColor(color, _TO_GRAY[enc])
+    return np.asarray(cv2.cvtColor(color, _TO_GRAY[enc]), dtype=np.uint8)
 
 
 def compressed_msg_to_mono(msg: Any) -> U8 | None:
@@ -87,11 +88,12 @@ def compressed_msg_to_mono(msg: Any) -> U8 | None:
     buf = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
     if buf.size == 0:
         return None
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    img: NDArray[Any] | None = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if img is None:
         return None
     if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
+        code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        img = np.asarray(cv2.cvtColor(img, code))
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
     return np.asarray(img, dtype=np.uint8)

@@ -11,6 +11,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from eurocslam.dataset.bag.calibration import EUROC_T_BODY_VICON, orthonormalize
 from eurocslam.dataset.bag.topics import EUROC_VICON_TOPIC, TopicMap
@@ -81,6 +82,7 @@ def write_rosbag(
 
     def image(t: int, img: U8, frame: str) -> Any:
         h, w = img.shape
+        data: NDArray[Any]
         if encoding == "mono8":
             data, step = np.ascontiguousarray(img).reshape(-1), w
         elif encoding == "mono16":
