@@ -1,4 +1,5 @@
-"""Structure: no import circles, core modules that import no I/O, modules of a readable size.
+"""Structure: no import circles anywhere in eurocslam, core modules that import no I/O, modules of
+a readable size.
 
 The import graph is read from the source (module-level and function-level imports alike), so a
 circle hidden in a function body counts too.
@@ -14,7 +15,8 @@ import pytest
 import eurocslam
 
 PKG = Path(eurocslam.__file__).parent
-# packages and modules held to these rules (the rest of the package joins as it is split)
+MAX_LINES = 600  # any module
+# packages and modules held to a tighter size
 CHECKED = (
     "eurocslam.dataset",
     "eurocslam.synth",
@@ -24,7 +26,7 @@ CHECKED = (
     "eurocslam.convert",
     "eurocslam.commands",
 )
-MAX_LINES = 520
+MAX_LINES_CHECKED = 520
 
 
 def _modules() -> dict[str, Path]:
@@ -101,8 +103,7 @@ def _circles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 
 def test_no_import_circles(graph: dict[str, set[str]]) -> None:
-    found = [c for c in _circles(graph) if any(_checked(m) for m in c)]
-    assert not found, found
+    assert not _circles(graph)
 
 
 @pytest.mark.parametrize("core", ["eurocslam.timebase", "eurocslam.trajectory"])
@@ -112,8 +113,8 @@ def test_core_modules_import_no_io(graph: dict[str, set[str]], core: str) -> Non
 
 
 def test_module_sizes() -> None:
-    sizes = {m: len(p.read_text().splitlines()) for m, p in _modules().items() if _checked(m)}
-    big = {m: n for m, n in sizes.items() if n > MAX_LINES}
+    sizes = {m: len(p.read_text().splitlines()) for m, p in _modules().items()}
+    big = {m: n for m, n in sizes.items() if n > (MAX_LINES_CHECKED if _checked(m) else MAX_LINES)}
     assert not big, big
 
 
