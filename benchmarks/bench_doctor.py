@@ -73,7 +73,7 @@ def main() -> int:
         print(f"real data not found: {MICRO}", file=sys.stderr)
         return 2
     from eurocslam.dataset.asl import AslSequence
-    from eurocslam.dataset.doctor import diagnose
+    from eurocslam.dataset.doctor.asl_checks import diagnose
 
     with tempfile.TemporaryDirectory(prefix="bench_doctor_") as tmp:
         seq, n = make_sequence(Path(tmp) / "V1_01_long")

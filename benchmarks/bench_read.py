@@ -113,7 +113,7 @@ def main() -> int:
         return 2
 
     from eurocslam.dataset.asl import AslSequence
-    from eurocslam.dataset.bag import write_rosbag
+    from eurocslam.dataset.bag.writer import write_rosbag
 
     tmp = args.keep or Path(tempfile.mkdtemp(prefix="bench_read_"))
     tmp.mkdir(parents=True, exist_ok=True)

@@ -75,8 +75,8 @@ def gt_file(full: str) -> Path:
 
 
 def make_replica(short: str, cache: Path, duration: float | None, seed: int) -> Path:
-    from eurocslam.dataset.synth import SynthSpec, synthesize
-    from eurocslam.dataset.synth.sequence import GENERATOR_REVISION
+    from eurocslam.synth import SynthSpec, synthesize
+    from eurocslam.synth.sequence import GENERATOR_REVISION
 
     tag = f"{short}_{'full' if duration is None else f'{duration:g}s'}_s{seed}"
     out = cache / tag

@@ -28,8 +28,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from eurocslam.dataset.synth import Scene, SynthSpec, synthesize
-from eurocslam.dataset.synth.sequence import PNG_PARAMS
+from eurocslam.synth import Scene, SynthSpec, synthesize
+from eurocslam.synth.sequence import PNG_PARAMS
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("EUROCSLAM_SHARED_EUROC", REPO.parent / "shared/data/euroc"))

@@ -8,7 +8,7 @@ import numpy as np
 
 from eurocslam.backend.initializer import choose_mode, static_init, static_window, stillness
 from eurocslam.config import InitConfig
-from eurocslam.dataset.asl import open_sequence
+from eurocslam.dataset import open_sequence
 from eurocslam.geometry import quat_wxyz_to_rot
 
 

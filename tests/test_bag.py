@@ -1,4 +1,4 @@
-"""ROS bags and MCAP as input (`dataset/bag.py`): bags written with rosbags' own writers from the
+"""ROS bags and MCAP as input (`dataset/bag/`): bags written with rosbags' own writers from the
 real V1_01 micro data must read back exactly as the ASL folder does, on every container
 (ROS 1 .bag, ROS 2 sqlite3 folder / .db3 file, ROS 2 MCAP folder / .mcap file)."""
 
@@ -15,16 +15,14 @@ import pytest
 
 from eurocslam.dataset import open_sequence
 from eurocslam.dataset.asl import AslSequence
-from eurocslam.dataset.bag import (
-    BagSequence,
-    TopicMap,
-    check_bag,
-    findings_exit_code,
-    header_stamp_ns,
-    is_bag_path,
-    write_rosbag,
-)
+from eurocslam.dataset.bag.files import is_bag_path
+from eurocslam.dataset.bag.messages import header_stamp_ns
+from eurocslam.dataset.bag.reader import BagSequence
+from eurocslam.dataset.bag.topics import TopicMap
+from eurocslam.dataset.bag.writer import write_rosbag
 from eurocslam.dataset.calib import default_rig
+from eurocslam.dataset.doctor.bag_checks import check_bag
+from eurocslam.dataset.doctor.report import exit_code
 from eurocslam.dataset.types import GroundTruth, ImuData
 from eurocslam.errors import CalibrationError, DatasetError
 
@@ -347,8 +345,8 @@ def test_unpaired_frames_are_counted_and_yielded_on_request(tmp_path: Path) -> N
     full = list(seq.frames(include_incomplete=True))
     assert len(full) == 6 and full[3].right is None and full[3].left is not None
     findings = check_bag(seq.path)
-    assert any(f.level == "warning" and "1 in cam0 only" in f.message for f in findings)
-    assert findings_exit_code(findings) == 1
+    assert any(f.severity == "warning" and "1 in cam0 only" in f.message for f in findings)
+    assert exit_code(findings) == 1
 
 
 @pytest.mark.parametrize("zero_stamps", [False, True])
@@ -484,8 +482,8 @@ def test_vicon_transform_is_moved_to_the_body_frame(asl: SimpleNamespace, tmp_pa
 
 def test_check_bag_on_a_good_bag(bags: dict[str, Path], asl: SimpleNamespace) -> None:
     findings = check_bag(bags["ros2-mcap-folder"])
-    text = "\n".join(f"{f.level}: {f.message}" for f in findings)
-    assert findings_exit_code(findings) == 0, text
+    text = "\n".join(f"{f.severity}: {f.message}" for f in findings)
+    assert exit_code(findings) == 0, text
     assert "stereo pairs: 95 joined on header stamp" in text
     assert "/imu0: rate 200.0 Hz" in text and "/cam0/image_raw: rate 20.0 Hz" in text
     assert f"imu: /imu0 [sensor_msgs/msg/Imu] {len(asl.imu)} messages" in text
@@ -494,8 +492,8 @@ def test_check_bag_on_a_good_bag(bags: dict[str, Path], asl: SimpleNamespace) ->
 def test_check_bag_reports_open_errors(tmp_path: Path) -> None:
     path = _raw_bag(tmp_path / "other.bag", cam_topics=("/left/image", "/right/image"))
     findings = check_bag(path)
-    assert findings_exit_code(findings) == 2
-    assert findings[0].level == "error" and "no topic for cam0" in findings[0].message
+    assert exit_code(findings) == 2
+    assert findings[0].severity == "error" and "no topic for cam0" in findings[0].message
 
 
 def test_machine_hall_bag_with_leica(mh01_first5: Path, tmp_path: Path) -> None:

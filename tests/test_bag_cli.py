@@ -17,7 +17,9 @@ import pytest
 from eurocslam.cli import main
 from eurocslam.dataset import open_sequence
 from eurocslam.dataset.asl import AslSequence
-from eurocslam.dataset.bag import BagSequence, TopicMap, write_rosbag
+from eurocslam.dataset.bag.reader import BagSequence
+from eurocslam.dataset.bag.topics import TopicMap
+from eurocslam.dataset.bag.writer import write_rosbag
 from eurocslam.dataset.calib import default_rig
 from eurocslam.dataset.types import GroundTruth
 
@@ -190,7 +192,7 @@ def test_run_on_a_synthetic_sequence_packed_into_a_bag(tmp_path: Path) -> None:
     """`eurocslam synth` output (moving, exact ground truth) packed into a ROS 2 MCAP bag: `run`
     on the bag gives the trajectory `run` gives on the ASL folder, and it follows the ground
     truth carried in the bag."""
-    synth = pytest.importorskip("eurocslam.dataset.synth")
+    synth = pytest.importorskip("eurocslam.synth")
     from eurocslam.eval.align import umeyama
 
     asl_dir = synth.synthesize(synth.SynthSpec.tiny(seed=3), tmp_path / "syn", workers=1)

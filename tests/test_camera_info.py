@@ -10,9 +10,9 @@ import yaml
 
 from eurocslam.cli import main
 from eurocslam.dataset import open_sequence
-from eurocslam.dataset.synth import SynthSpec, synthesize
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import Extractor
+from eurocslam.synth import SynthSpec, synthesize
 
 
 def _camera_infos(mcap: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -208,8 +208,8 @@ def test_calib_folder_may_be_the_sequence_folder(v101_micro: Path) -> None:
 def test_synth_staging_folder_is_never_someone_elses(tmp_path: Path) -> None:
     """synth stages OUT.partial: a leftover of an interrupted synth is replaced, anything else
     (a file, a folder with other content) is an error, not an internal error or a deletion."""
-    from eurocslam.dataset.synth.writer import prepare_folder
     from eurocslam.errors import OutputError
+    from eurocslam.synth.writer import prepare_folder
 
     out = tmp_path / "seq"
     stage = tmp_path / "seq.partial"

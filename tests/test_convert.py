@@ -235,7 +235,7 @@ def test_interrupted_write_leaves_readable_partial(
     v101_micro: Path,
     tmp_path: Path,
     monkeypatch: pytest.MonkeyPatch,
-    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
     exc: BaseException,
 ) -> None:
     calls = {"n": 0}
@@ -254,8 +254,9 @@ def test_interrupted_write_leaves_readable_partial(
         convert(open_sequence(v101_micro), out, ConvertOptions(progress=False))
     partial = tmp_path / "int.mcap.partial"
     assert not out.exists() and partial.exists()
-    err = capsys.readouterr().err
-    assert "int.mcap.partial" in err and "readable" in err
+    (rec,) = [r for r in caplog.records if r.name == "eurocslam.convert"]
+    assert rec.levelname == "WARNING" and rec.getMessage().startswith("eurocslam convert: stopped")
+    assert "int.mcap.partial" in rec.getMessage() and "readable" in rec.getMessage()
     link = tmp_path / "partial-copy.mcap"  # rosbags picks its reader by the file suffix
     link.symlink_to(partial)
     msgs = _read_all(link)

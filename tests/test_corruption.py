@@ -28,7 +28,8 @@ from asl_helpers import (
     write_lines,
 )
 from eurocslam.dataset.asl import AslSequence
-from eurocslam.dataset.doctor import ERROR, INFO, WARNING, DoctorReport, diagnose
+from eurocslam.dataset.doctor.asl_checks import diagnose
+from eurocslam.dataset.doctor.report import ERROR, INFO, WARNING, DoctorReport
 from eurocslam.errors import DatasetError
 
 N_FRAMES = 40
@@ -342,6 +343,15 @@ def m_cam_integer_seconds(m: Path) -> None:
     _edit(m / "cam0" / "data.csv", conv)
 
 
+def m_imu_integer_seconds(m: Path) -> None:
+    def conv(ls: list[str]) -> list[str]:
+        return [ls[0]] + [
+            f"{int(ln.split(',')[0]) // 10**9},{ln.split(',', 1)[1]}" for ln in ls[1:]
+        ]
+
+    _edit(_imu(m), conv)
+
+
 def m_cam1_offset(m: Path) -> None:
     def conv(ls: list[str]) -> list[str]:
         return [ls[0]] + [f"{int(ln.split(',')[0]) + 1000},{ln.split(',')[1]}" for ln in ls[1:]]
@@ -431,6 +441,10 @@ CASES: dict[str, Case] = {
     "cam timestamps in integer seconds": Case(m_cam_integer_seconds, ERROR, "(timestamps in "
                                               "seconds?)", "cam0/data.csv",
                                               "raises:seconds vs nanoseconds"),
+    # the reader and the doctor blame the same file: the one the other streams disagree with
+    "imu timestamps in integer seconds": Case(m_imu_integer_seconds, ERROR, "(timestamps in "
+                                              "seconds?)", "imu0/data.csv",
+                                              "raises:imu0/data.csv: timestamps are ~1e9 but"),
     "cam1 clock offset": Case(m_cam1_offset, ERROR, "share no timestamp", "cam1/data.csv",
                               "raises:share no timestamp"),
     "rate mismatch": Case(m_rate_mismatch, WARNING, "differs from sensor.yaml rate_hz",

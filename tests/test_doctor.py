@@ -7,15 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from eurocslam.dataset.doctor import (
-    ERROR,
-    INFO,
-    WARNING,
-    DoctorReport,
-    diagnose,
-    diagnose_bag,
-    read_png_header,
-)
+from eurocslam.dataset.doctor.asl_checks import diagnose
+from eurocslam.dataset.doctor.bag_checks import diagnose_bag
+from eurocslam.dataset.doctor.image_checks import read_png_header
+from eurocslam.dataset.doctor.report import ERROR, INFO, WARNING, DoctorReport
 
 
 @pytest.fixture(scope="module")
@@ -103,7 +98,7 @@ def test_missing_path_is_an_error_finding(tmp_path: Path) -> None:
 
 def test_doctor_on_a_bag(mh01_first5: Path, tmp_path: Path) -> None:
     from eurocslam.dataset.asl import AslSequence
-    from eurocslam.dataset.bag import write_rosbag
+    from eurocslam.dataset.bag.writer import write_rosbag
 
     bag = write_rosbag(AslSequence(mh01_first5), tmp_path / "mh.bag", "ros1")
     r = diagnose_bag(bag)

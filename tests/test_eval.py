@@ -14,7 +14,7 @@ from eurocslam.eval.evaluate import EvalConfig, coverage, evaluate
 from eurocslam.eval.metrics import cumulative_distance, distance_pairs
 from eurocslam.eval.synthetic import T0_NS, perturb, random_similarity, smooth_trajectory
 from eurocslam.geometry import rot_z, so3_exp
-from eurocslam.io.trajectory_io import Trajectory
+from eurocslam.trajectory import Trajectory
 
 
 @pytest.fixture(scope="module")

@@ -10,12 +10,12 @@ import pytest
 from eurocslam.camera import triangulate_rect
 from eurocslam.config import RunConfig
 from eurocslam.dataset import open_sequence
-from eurocslam.dataset.synth import Scene, SynthSpec, synthesize
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.eval.align import align
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import Extractor
 from eurocslam.pipeline.slam import SlamPipeline
+from eurocslam.synth import Scene, SynthSpec, synthesize
 from frontend_helpers import Frontend
 
 

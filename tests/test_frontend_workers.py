@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eurocslam.dataset.synth import Scene, SynthSpec
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import DatasetError, SlamError
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import FrameFeatures
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.workers import ExtractionWorkers
+from eurocslam.synth import Scene, SynthSpec
 
 
 @pytest.fixture(scope="module")
@@ -247,7 +247,7 @@ import sys
 sys.path.insert(0, {str(copy)!r})
 import eurocslam
 assert eurocslam.__file__.startswith({str(copy)!r}), eurocslam.__file__
-from eurocslam.dataset.synth import Scene, SynthSpec
+from eurocslam.synth import Scene, SynthSpec
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.stream import FeatureStream

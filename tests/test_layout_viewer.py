@@ -45,7 +45,7 @@ def _need_viewer() -> None:
 @pytest.fixture(scope="module")
 def run_mcap(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from eurocslam.cli import main
-    from eurocslam.dataset.synth import SynthSpec, synthesize
+    from eurocslam.synth import SynthSpec, synthesize
 
     base = tmp_path_factory.mktemp("viewer")
     seq = synthesize(SynthSpec.tiny(seed=1), base / "seq")

@@ -39,7 +39,7 @@ MAIN = {
 
 
 def test_run_live_streams_while_processing_and_writes_the_mcap(tmp_path: Path) -> None:
-    from eurocslam.dataset.synth import SynthSpec, synthesize
+    from eurocslam.synth import SynthSpec, synthesize
 
     seq = synthesize(SynthSpec.tiny(seed=2), tmp_path / "seq")
     out = tmp_path / "out"

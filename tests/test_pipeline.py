@@ -16,16 +16,16 @@ from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import GroundTruth, ImuData, PositionData, SkipReport, StereoFrame
 from eurocslam.eval.evaluate import evaluate
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.io.trajectory_io import Trajectory
 from eurocslam.pipeline.records import PipelineState, RunResult
 from eurocslam.pipeline.slam import SlamPipeline
+from eurocslam.trajectory import Trajectory
 
 SYNTH_S = 4.0
 
 
 @pytest.fixture(scope="module")
 def synth_seq(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from eurocslam.dataset.synth import SynthSpec, synthesize
+    from eurocslam.synth import SynthSpec, synthesize
 
     return synthesize(SynthSpec(duration_s=SYNTH_S, seed=4), tmp_path_factory.mktemp("s") / "seq")
 
@@ -201,7 +201,7 @@ def test_reset_starts_a_new_segment(synth_seq: Path, tmp_path: Path) -> None:
 def test_map_reuse_closes_loops(tmp_path: Path) -> None:
     """An 8 s flight comes back to where it was: archived landmarks are re-found under their
     old ids and the final batch, joining then and now, beats the run without map reuse."""
-    from eurocslam.dataset.synth import SynthSpec, synthesize
+    from eurocslam.synth import SynthSpec, synthesize
 
     seq = open_sequence(synthesize(SynthSpec(duration_s=8.0, seed=4), tmp_path / "seq"))
     gt = _gt(seq)

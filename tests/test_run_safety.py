@@ -12,10 +12,10 @@ import pytest
 
 from eurocslam.cli import main
 from eurocslam.dataset import open_sequence
-from eurocslam.dataset.synth import SynthSpec, synthesize
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import DatasetError
 from eurocslam.runner import run_slam
+from eurocslam.synth import SynthSpec, synthesize
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Synthetic sequences: geometry, IMU and format correctness of `eurocslam.dataset.synth`.
+"""Synthetic sequences: geometry, IMU and format correctness of `eurocslam.synth`.
 
 The built-in checks the issue asks for: stereo triangulation reproduces the rendered depth, the
 noise-free IMU integrates back to the ground truth, a known 3D point is drawn where
@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from eurocslam.dataset import open_sequence
-from eurocslam.dataset.synth import Marker, Scene, SynthSpec, synthesize
-from eurocslam.dataset.synth.spline import fit_spline, so3_exp_batch, so3_log_batch
 from eurocslam.geometry import inv_T, quat_wxyz_to_rot, rot_to_quat_wxyz
+from eurocslam.synth import Marker, Scene, SynthSpec, synthesize
+from eurocslam.synth.spline import fit_spline, so3_exp_batch, so3_log_batch
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
 
@@ -114,7 +114,7 @@ def test_noise_free_imu_integrates_back_to_groundtruth(ideal_seq: Path) -> None:
 
 
 def test_consistency_measure_of_a_noise_free_sequence(ideal_seq: Path) -> None:
-    from eurocslam.dataset.synth.consistency import main, sequence_mismatch
+    from eurocslam.synth.consistency import main, sequence_mismatch
 
     m = sequence_mismatch(ideal_seq, windows_s=(0.05, 0.2, 1.0))
     assert max(m.gyro_deg) < 1e-3
@@ -141,7 +141,7 @@ def _sequence_copy(seq: Path, out: Path, imu_fn=None, gt_fn=None) -> Path:  # ty
 def test_consistency_measure_sees_a_bias_offset(ideal_seq: Path, tmp_path: Path) -> None:
     """Positive control: 1e-3 rad/s more gyro bias than the ground truth says gives about
     degrees(1e-3 w) over a window of w s, 0.02 m/s^2 more accel bias about 0.02 w m/s."""
-    from eurocslam.dataset.synth.consistency import sequence_mismatch
+    from eurocslam.synth.consistency import sequence_mismatch
 
     def offset(t, v):  # type: ignore[no-untyped-def]
         v[:, 0:3] += [0.0, 1e-3, 0.0]
@@ -161,8 +161,8 @@ def test_consistency_tool_errors(
     """A ground truth not at the IMU's stamps (every 10th, none, a real 20 Hz one) is refused by
     name, not measured on what stamps match; a window longer than the sequence prints "-"; CLI
     errors are one line."""
-    from eurocslam.dataset.synth.consistency import main, sequence_mismatch
     from eurocslam.errors import DatasetError
+    from eurocslam.synth.consistency import main, sequence_mismatch
 
     sparse = _sequence_copy(ideal_seq, tmp_path / "sparse", gt_fn=lambda t, v: (t[::10], v[::10]))
     gt_csv = sparse / "mav0" / "state_groundtruth_estimate0" / "data.csv"
@@ -187,8 +187,8 @@ def test_consistency_tool_errors(
 
 def test_imu_noise_and_biases_follow_the_calibration() -> None:
     from eurocslam.dataset.calib import default_rig
-    from eurocslam.dataset.synth.imu import ideal_imu, simulate_imu
-    from eurocslam.dataset.synth.trajectory import builtin_motion
+    from eurocslam.synth.imu import ideal_imu, simulate_imu
+    from eurocslam.synth.trajectory import builtin_motion
 
     rig = default_rig()
     m = builtin_motion(30.0, 1)
@@ -276,7 +276,7 @@ def test_known_point_projects_where_it_is_drawn() -> None:
 
 # ---- the written folder ---------------------------------------------------------------------
 def test_written_sequence_reads_back_and_passes_doctor(ideal_seq: Path) -> None:
-    from eurocslam.dataset.doctor import diagnose
+    from eurocslam.dataset.doctor.asl_checks import diagnose
 
     seq = open_sequence(ideal_seq)
     assert seq.skips.total == 0
@@ -294,7 +294,7 @@ def test_written_sequence_reads_back_and_passes_doctor(ideal_seq: Path) -> None:
 
 
 def test_realistic_sequence_passes_doctor(real_seq: Path) -> None:
-    from eurocslam.dataset.doctor import diagnose
+    from eurocslam.dataset.doctor.asl_checks import diagnose
 
     report = diagnose(real_seq, full=True)
     assert report.exit_code == 0, [f.message for f in report.findings]
@@ -329,7 +329,7 @@ def test_refuses_to_overwrite_without_force(tmp_path: Path) -> None:
 
 # ---- semi-real replicas ---------------------------------------------------------------------
 def test_replica_follows_real_groundtruth(euroc_dir: Path) -> None:
-    from eurocslam.dataset.synth.trajectory import motion_from_groundtruth, read_groundtruth_file
+    from eurocslam.synth.trajectory import motion_from_groundtruth, read_groundtruth_file
 
     for name in ("V1_02_medium.csv", "MH_01_easy.txt"):
         gt = read_groundtruth_file(euroc_dir / "groundtruth" / name)
@@ -346,7 +346,7 @@ def test_replica_follows_real_groundtruth(euroc_dir: Path) -> None:
 def _window_mismatch(t_ns, gyro, accel, bg, ba, st, n):  # type: ignore[no-untyped-def]
     """consistency.imu_mismatch over one window of n IMU intervals (constant biases bg, ba):
     (median angle [deg], median |delta-v| error [m/s])."""
-    from eurocslam.dataset.synth.consistency import imu_mismatch
+    from eurocslam.synth.consistency import imu_mismatch
 
     assert np.all(bg == bg[0]) and np.all(ba == ba[0])
     win = n * float(np.median(np.diff(t_ns))) * 1e-9
@@ -358,9 +358,9 @@ def test_imu_groundtruth_fusion_recovers_the_motion() -> None:
     """fusion.py: the true motion's IMU plus a ground truth with orientation and position noise,
     in a world 0.3 deg off gravity: the fused poses are the true motion (gravity-aligned again),
     closer than the ground truth, and the IMU integrates onto them."""
-    from eurocslam.dataset.synth.fusion import fuse_imu_groundtruth
-    from eurocslam.dataset.synth.imu import ideal_imu
-    from eurocslam.dataset.synth.trajectory import builtin_motion
+    from eurocslam.synth.fusion import fuse_imu_groundtruth
+    from eurocslam.synth.imu import ideal_imu
+    from eurocslam.synth.trajectory import builtin_motion
 
     m = builtin_motion(12.0, 3)
     t_ns = m.t0_ns + 5_000_000 * np.arange(2401, dtype=np.int64)
@@ -448,7 +448,7 @@ def test_cli_writes_a_sequence(tmp_path: Path, capsys: pytest.CaptureFixture[str
 
 
 def test_large_rooms_get_coarser_texels_not_stretched_textures() -> None:
-    from eurocslam.dataset.synth.world import MAX_TEX, build_world
+    from eurocslam.synth.world import MAX_TEX, build_world
 
     path = np.array([[0.0, 0.0, 1.0], [30.0, 4.0, 1.5]])
     w = build_world(path, 0)
@@ -504,8 +504,8 @@ def _write_asl_gt(path: Path, t_ns: np.ndarray, bg: np.ndarray) -> None:
 
 
 def test_groundtruth_biases_and_gaps(tmp_path: Path) -> None:
-    from eurocslam.dataset.synth.trajectory import motion_from_groundtruth, read_groundtruth_file
     from eurocslam.errors import DatasetError
+    from eurocslam.synth.trajectory import motion_from_groundtruth, read_groundtruth_file
 
     t = 1_403_000_000_000_000_000 + 5_000_000 * np.arange(600, dtype=np.int64)
     good = tmp_path / "gt.csv"

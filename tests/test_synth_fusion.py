@@ -1,4 +1,4 @@
-"""fusion.py: worlds at any tilt, input validation, errors naming the file; imu.integrate_gyro."""
+"""fusion.py: worlds at any tilt, input validation, errors naming the file; integrate_gyro."""
 
 from __future__ import annotations
 
@@ -9,16 +9,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eurocslam.dataset.synth.fusion import fuse_imu_groundtruth
-from eurocslam.dataset.synth.imu import ideal_imu, integrate_gyro
-from eurocslam.dataset.synth.spline import so3_exp_batch, so3_log_batch
-from eurocslam.dataset.synth.trajectory import (
+from eurocslam.errors import DatasetError
+from eurocslam.geometry import rot_to_quat_wxyz
+from eurocslam.synth.fusion import fuse_imu_groundtruth
+from eurocslam.synth.imu import ideal_imu
+from eurocslam.synth.kinematics import integrate_gyro
+from eurocslam.synth.spline import so3_exp_batch, so3_log_batch
+from eurocslam.synth.trajectory import (
     GroundTruthInput,
     builtin_motion,
     motion_from_groundtruth,
 )
-from eurocslam.errors import DatasetError
-from eurocslam.geometry import rot_to_quat_wxyz
 
 
 @lru_cache(maxsize=1)

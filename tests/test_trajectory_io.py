@@ -10,16 +10,15 @@ import pytest
 from eurocslam.errors import EvalError
 from eurocslam.eval.synthetic import smooth_trajectory
 from eurocslam.io.trajectory_io import (
-    Trajectory,
     count_repeated_stamps,
-    ns_to_seconds_str,
     read_euroc_csv,
     read_trajectory,
     read_tum,
-    seconds_str_to_ns,
     write_euroc_csv,
     write_tum,
 )
+from eurocslam.timebase import ns_to_seconds_str, seconds_str_to_ns
+from eurocslam.trajectory import Trajectory
 
 
 def _traj(n: int = 50, seed: int = 0) -> Trajectory:

@@ -5,12 +5,12 @@ IMU / ground truth / leica in log-time order) -> `ThreadedSink` (chunk compressi
 in a background thread) -> `McapSink` (`out.mcap.partial`, renamed when complete).
 At most `2 * workers + 2` frames are in flight, so memory does not grow with sequence length.
 On any exception or Ctrl-C the MCAP is still finished (readable) under its `.partial` name and
-the user is told where it is.
+the user is told where it is (a logged warning).
 """
 
 from __future__ import annotations
 
-import sys
+import logging
 import time
 from collections import deque
 from collections.abc import Iterator
@@ -24,8 +24,9 @@ from eurocslam.io.mcap_writer import McapSink, WriteSummary
 from eurocslam.io.sensor_streams import EncodedFrame, SensorStreams, StreamOptions
 from eurocslam.io.sink import ThreadedSink
 from eurocslam.progress import bar
+from eurocslam.timebase import resolve_time
 
-ABSOLUTE_NS_THRESHOLD = 10**15  # a time this large is an absolute timestamp in ns, not seconds
+logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -74,15 +75,6 @@ def sequence_start_ns(source: SequenceSource) -> int:
     if not cands:
         raise OutputError(f"{source.name}: the sequence holds no timestamps")
     return min(cands)
-
-
-def resolve_time(value: float | None, t_ref_ns: int) -> int | None:
-    """Seconds relative to `t_ref_ns`, or an absolute nanosecond timestamp when >= 1e15."""
-    if value is None:
-        return None
-    if abs(value) >= ABSOLUTE_NS_THRESHOLD:
-        return int(value)
-    return t_ref_ns + round(value * 1e9)
 
 
 def _encoded_frames(
@@ -183,7 +175,7 @@ def convert(
             )
         except Exception as e2:  # pragma: no cover - disk full etc.
             msg = f"stopped early; could not finish {mcap.partial}: {e2}"
-        print(f"eurocslam convert: {msg}", file=sys.stderr)
+        logger.warning("eurocslam convert: %s", msg)
         if isinstance(e, EurocSlamError | KeyboardInterrupt):
             raise
         raise OutputError(f"conversion failed: {type(e).__name__}: {e} ({msg})") from e

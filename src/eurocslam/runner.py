@@ -34,11 +34,12 @@ from eurocslam.errors import OutputError
 from eurocslam.io.ply import write_ply
 from eurocslam.io.sink import Sink
 from eurocslam.io.staging import StagedOutputs
-from eurocslam.io.trajectory_io import Trajectory, write_euroc_csv, write_tum
+from eurocslam.io.trajectory_io import write_euroc_csv, write_tum
 from eurocslam.pipeline.records import FrameOutput, RunResult
 from eurocslam.pipeline.slam import SlamPipeline
 from eurocslam.progress import bar
 from eurocslam.run_options import COMPRESSIONS, IMAGE_MODES, RunOptions
+from eurocslam.trajectory import Trajectory
 
 logger = logging.getLogger(__name__)
 
@@ -102,7 +103,8 @@ def run_slam(
 ) -> RunResult:
     """`extra_sinks` (e.g. the live view's `io.live.LiveSink`) receive every message that goes
     into run.mcap, in the same order, from the pipeline thread; the caller closes them."""
-    from eurocslam.convert import resolve_time, sequence_start_ns
+    from eurocslam.convert import sequence_start_ns
+    from eurocslam.timebase import resolve_time
 
     opt = options or RunOptions()
     cfg = resolve_mode(cfg or RunConfig(), len(source.imu) > 0, source.name)

@@ -1,12 +1,16 @@
-"""Argument types shared by the subcommands (not a command itself: the CLI skips `_` modules).
+"""Arguments shared by the subcommands (not a command itself: the CLI skips `_` modules).
 
 argparse's plain `type=float` accepts `nan` and `inf`, which then fail deep inside as an internal
-error; these reject them at the command line with argparse's usual one-line message."""
+error; these reject them at the command line with argparse's usual one-line message. The input
+SEQUENCE with `--calib` and `--topic` is read the same way by every command that reads one
+(`add_sequence_arguments`, `source_options`)."""
 
 from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
+from typing import Any
 
 
 def finite_float(value: str) -> float:
@@ -45,10 +49,34 @@ SEQUENCE_HELP = (
 def add_sequence_arguments(parser: argparse.ArgumentParser) -> None:
     """The input SEQUENCE of a command that reads one (ASL folder or bag), with `--calib` and
     `--topic` for bags."""
-    from eurocslam.dataset.bag import add_source_arguments
-
     parser.add_argument("sequence", help=SEQUENCE_HELP)
-    add_source_arguments(parser)
+    parser.add_argument(
+        "--calib",
+        metavar="DIR",
+        type=Path,
+        default=None,
+        help="folder with cam0/, cam1/, imu0/ sensor.yaml files (bags carry no calibration; "
+        "default: an MCAP's attached sensor.yaml, else the built-in EuRoC calibration)",
+    )
+    parser.add_argument(
+        "--topic",
+        metavar="ROLE=TOPIC",
+        action="append",
+        default=[],
+        help="input bags: read this topic for a role (cam0, cam1, imu, groundtruth, leica), "
+        "e.g. --topic cam0=/my/left; repeatable",
+    )
+
+
+def source_options(args: argparse.Namespace) -> dict[str, Any]:
+    """`open_sequence` keyword arguments from the options `add_sequence_arguments` added."""
+    from eurocslam.dataset.bag.topics import TopicMap
+
+    specs = getattr(args, "topic", None) or []
+    return {
+        "calib": getattr(args, "calib", None),
+        "topics": TopicMap.from_specs(specs) if specs else None,
+    }
 
 
 # eurocslam.eval.align.ALIGN_MODES (kept literal so that building the parser imports no numpy;

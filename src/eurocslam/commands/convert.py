@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from eurocslam.commands._args import add_sequence_arguments, finite_float
+from eurocslam.commands._args import add_sequence_arguments, finite_float, source_options
 
 NAME = "convert"
 HELP = "convert an EuRoC sequence to a ROS 2 MCAP (images, camera_info, IMU, tf, ground truth)"
@@ -66,7 +66,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from eurocslam.convert import ConvertOptions, convert
     from eurocslam.dataset import open_sequence
-    from eurocslam.dataset.bag import source_options
     from eurocslam.errors import OutputError
 
     if not str(args.output).endswith(".mcap"):

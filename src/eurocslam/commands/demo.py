@@ -129,8 +129,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def cached_sequence(spec, cache: Path, progress: bool | None = None) -> tuple[Path, bool]:  # type: ignore[no-untyped-def]
     """The sequence for `spec` in `cache`, synthesised unless an identical one is there.
     Returns (path, reused)."""
-    from eurocslam.dataset.synth import synthesize
-    from eurocslam.dataset.synth.sequence import GENERATOR_REVISION
+    from eurocslam.synth import synthesize
+    from eurocslam.synth.sequence import GENERATOR_REVISION
 
     want = spec.to_json()
     ident = json.dumps({"spec": want, "revision": GENERATOR_REVISION}, sort_keys=True)
@@ -150,8 +150,8 @@ def cached_sequence(spec, cache: Path, progress: bool | None = None) -> tuple[Pa
 
 def run(args: argparse.Namespace) -> int:
     from eurocslam.cli import build_parser
-    from eurocslam.dataset.synth import SynthSpec
     from eurocslam.errors import EurocSlamError
+    from eurocslam.synth import SynthSpec
 
     names = [s.strip() for s in args.steps.split(",") if s.strip()]
     known = {s.name: s for s in STEPS}

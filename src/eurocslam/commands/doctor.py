@@ -7,7 +7,7 @@ import argparse
 import json
 import sys
 
-from eurocslam.commands._args import add_sequence_arguments
+from eurocslam.commands._args import add_sequence_arguments, source_options
 
 NAME = "doctor"
 HELP = "check an EuRoC sequence folder (files, CSVs, timestamps, images, calibration) or a bag"
@@ -35,8 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from eurocslam.dataset.bag import is_bag_path, source_options
-    from eurocslam.dataset.doctor import diagnose, diagnose_bag
+    from eurocslam.dataset.bag.files import is_bag_path
+    from eurocslam.dataset.doctor.asl_checks import diagnose
+    from eurocslam.dataset.doctor.bag_checks import diagnose_bag
     from eurocslam.progress import bar
 
     if args.sample < 0:

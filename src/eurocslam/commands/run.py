@@ -111,9 +111,9 @@ def _start_live(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
+    from eurocslam.commands._args import source_options
     from eurocslam.config import VISUAL_ONLY, load_config, resolve_mode
     from eurocslam.dataset import open_sequence
-    from eurocslam.dataset.bag import source_options
 
     _check_live_args(args)
     cfg = load_config(args.config)

@@ -23,7 +23,7 @@ _SWITCHES = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from eurocslam.dataset.synth.sequence import SynthSpec
+    from eurocslam.synth.sequence import SynthSpec
 
     d = SynthSpec()
     p.add_argument("out", type=Path, metavar="OUT", help="output sequence folder (gets mav0/)")
@@ -100,7 +100,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def spec_from_args(args: argparse.Namespace):  # -> SynthSpec
-    from eurocslam.dataset.synth.sequence import TINY_DURATION_S, SynthSpec
+    from eurocslam.synth.sequence import TINY_DURATION_S, SynthSpec
 
     duration = args.duration
     if args.tiny and duration is None:
@@ -119,8 +119,8 @@ def spec_from_args(args: argparse.Namespace):  # -> SynthSpec
 
 
 def run(args: argparse.Namespace) -> int:
-    from eurocslam.dataset.synth.sequence import synthesize
     from eurocslam.errors import DatasetError
+    from eurocslam.synth.sequence import synthesize
 
     if args.duration is not None and args.duration <= 0:
         raise DatasetError(f"--duration {args.duration:g}: must be positive")

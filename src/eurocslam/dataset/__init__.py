@@ -1,7 +1,9 @@
-"""Dataset access: EuRoC ASL reader, calibration, validation (doctor) and synthetic generator."""
+"""Dataset access: the EuRoC ASL reader, ROS bags and MCAP as input (`bag`), calibration, and the
+checks on a sequence before it is trusted (`doctor`)."""
 
-from eurocslam.dataset.asl import AslSequence, open_sequence
+from eurocslam.dataset.asl import AslSequence
 from eurocslam.dataset.calib import CameraCalib, ImuCalib, StereoRig, default_rig, load_rig
+from eurocslam.dataset.source import open_sequence
 from eurocslam.dataset.types import (
     GroundTruth,
     ImuData,

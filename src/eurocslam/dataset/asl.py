@@ -14,13 +14,14 @@ orders of magnitude (seconds vs nanoseconds) are refused.
 from __future__ import annotations
 
 import zlib
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from eurocslam.dataset.calib import StereoRig, load_rig
 from eurocslam.dataset.types import (
@@ -35,9 +36,7 @@ from eurocslam.dataset.types import (
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import normalize_quat
 from eurocslam.textfile import read_text
-
-if TYPE_CHECKING:
-    from eurocslam.dataset.bag import BagSequence, TopicMap
+from eurocslam.timebase import magnitude, parse_timestamp, unit_outliers
 
 SENSORS = ("cam0", "cam1", "imu0", "state_groundtruth_estimate0", "leica0")
 
@@ -69,34 +68,6 @@ class CsvTable:
 def read_text_file(path: Path) -> str:
     """Read a CSV as text (UTF-8, BOM tolerated); errors name the file."""
     return read_text(path, DatasetError)
-
-
-def _looks_like_seconds(tok: str) -> bool:
-    try:
-        v = float(tok)
-    except ValueError:
-        return False
-    return "." in tok or "e" in tok.lower() or v < 1e12
-
-
-INT64_MAX = 2**63 - 1
-
-
-def parse_timestamp(tok: str, where: str) -> int:
-    """An integer-nanosecond timestamp in [0, 2^63); `DatasetError` naming `where` otherwise."""
-    try:
-        t = int(tok)
-    except ValueError:
-        hint = " (looks like seconds; expected integer nanoseconds)"
-        raise DatasetError(
-            f"{where}: timestamp '{tok}' is not an integer"
-            + (hint if _looks_like_seconds(tok) else "")
-        ) from None
-    if not 0 <= t <= INT64_MAX:
-        raise DatasetError(
-            f"{where}: timestamp '{tok}' is out of range (integer nanoseconds, 0 <= t < 2^63)"
-        )
-    return t
 
 
 def parse_numeric_rows(rows: list[str], ncols: int) -> tuple[I64, np.ndarray] | None:
@@ -237,13 +208,15 @@ def decode_image_bytes(data: bytes, *, check_crc: bool = False) -> DecodedImage:
         problem = png_problem(data, check_crc)
         if problem is not None:
             return DecodedImage(None, problem)
-    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    img: NDArray[Any] | None = cv2.imdecode(
+        np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED
+    )
     if img is None:
         return DecodedImage(None, "not a decodable image")
     notes = []
     if img.ndim == 3:
         code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
-        img = cv2.cvtColor(img, code)
+        img = np.asarray(cv2.cvtColor(img, code))
         notes.append("colour to mono")
     if img.dtype == np.uint16:
         img = (img >> 8).astype(np.uint8)
@@ -404,19 +377,14 @@ class AslSequence:
             streams[self.mav0 / "state_groundtruth_estimate0" / "data.csv"] = self.groundtruth.t_ns
         if self.leica is not None:
             streams[self.mav0 / "leica0" / "data.csv"] = self.leica.t_ns
-        mags = {
-            p: float(np.log10(max(abs(float(np.median(t))), 1.0)))
-            for p, t in streams.items()
-            if t.size
-        }
-        ref_path = self.mav0 / "imu0" / "data.csv"
-        ref = mags[ref_path]
-        for p, m in mags.items():
-            if abs(m - ref) > 2.0:
-                raise DatasetError(
-                    f"{p}: timestamps are ~1e{m:.0f} but {ref_path} has ~1e{ref:.0f}: seconds vs "
-                    "nanoseconds mix-up? EuRoC timestamps are integer nanoseconds"
-                )
+        mags = {p: magnitude(t) for p, t in streams.items() if t.size}
+        ref_path, outliers = unit_outliers(mags, prefer=self.mav0 / "imu0" / "data.csv")
+        if outliers:
+            p, ref = outliers[0], mags[ref_path]
+            raise DatasetError(
+                f"{p}: timestamps are ~1e{mags[p]:.0f} but {ref_path} has ~1e{ref:.0f}: seconds vs "
+                "nanoseconds mix-up? EuRoC timestamps are integer nanoseconds"
+            )
 
     # ---- streams ----------------------------------------------------------------------------
     @property
@@ -476,38 +444,3 @@ class AslSequence:
         if dec.converted:
             self.skips.add(f"{cam} image converted ({dec.converted})", str(path))
         return dec.image
-
-
-def open_sequence(
-    path: Path | str,
-    rig: StereoRig | None = None,
-    *,
-    calib: Path | str | None = None,
-    topics: TopicMap | Mapping[str, str] | None = None,
-    quiet: bool = False,
-) -> AslSequence | BagSequence:
-    """Open an input sequence: an EuRoC ASL folder (or its `mav0/`), a ROS 1 `.bag`, a ROS 2 bag
-    folder (`metadata.yaml`), a `.db3` or an `.mcap` (including `eurocslam convert` output).
-
-    `rig` wins over `calib` (a folder of cam0/cam1/imu0 `sensor.yaml` files); `topics` maps bag
-    topics to roles (`{"cam0": "/my/left"}`, bags only). Notes (calibration fallback, stamp
-    source) are printed on stderr unless `quiet`; they stay in the source's `notes`.
-    """
-    from eurocslam.dataset.bag import BagSequence, is_bag_path, print_notes
-
-    p = Path(path)
-    if is_bag_path(p):
-        seq = BagSequence(p, rig, calib=calib, topics=topics)
-        if not quiet:
-            print_notes(seq)
-        return seq
-    if topics:
-        raise DatasetError(f"{p}: --topic applies to ROS bags and MCAP inputs, not ASL folders")
-    if p.is_file():
-        raise DatasetError(
-            f"{p}: not a recognised input (expected an EuRoC ASL folder, a .bag, .db3 or .mcap "
-            "file, or a ROS 2 bag folder)"
-        )
-    if rig is None and calib is not None:
-        rig = load_rig(Path(calib))
-    return AslSequence(path, rig)

@@ -13,7 +13,7 @@ Sequence list (YAML)::
     sequences:
       - /data/euroc/MH_01_easy     # an EuRoC folder (name from the folder)
       - {name: V101, path: /data/euroc/V1_01_easy}
-      - {name: synth_a, synth: {duration_s: 20, seed: 3}}   # eurocslam.dataset.synth.SynthSpec
+      - {name: synth_a, synth: {duration_s: 20, seed: 3}}   # eurocslam.synth.SynthSpec
 
 Relative paths are relative to the YAML file. Synthetic sequences are generated once into
 `OUT/sequences/NAME` and reused when already there. Each run leaves its outputs, `run.log`,
@@ -261,7 +261,7 @@ def prepare_sequences(plan: BenchPlan, out_dir: Path, progress: bool | None) -> 
                 )
             paths[s.name] = s.path
             continue
-        from eurocslam.dataset.synth import SynthSpec, synthesize
+        from eurocslam.synth import SynthSpec, synthesize
 
         dest = out_dir / "sequences" / s.name
         spec_file = dest / "bench_synth_spec.json"

@@ -1,6 +1,6 @@
 """Evaluate an estimate against a reference: associate, align, ATE, RPE, per segment.
 
-A run with resets writes a segment id per pose (see `io.trajectory_io`). Each segment lives in its
+A run with resets writes a segment id per pose (see `trajectory`). Each segment lives in its
 own world frame, so each is associated and aligned **on its own**; the overall figures pool the
 per-pose (ATE) and per-pair (RPE) errors of every evaluated segment. Coverage is the fraction of
 the ground-truth time span during which the estimate has poses (gaps longer than
@@ -32,7 +32,7 @@ from eurocslam.eval.metrics import (
     rpe_length,
 )
 from eurocslam.geometry import F64, make_T
-from eurocslam.io.trajectory_io import Trajectory
+from eurocslam.trajectory import Trajectory
 
 I64 = NDArray[np.int64]
 DEFAULT_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5)

@@ -25,12 +25,8 @@ from typing import Any
 import numpy as np
 
 from eurocslam.errors import EurocSlamError, EvalError
-from eurocslam.io.trajectory_io import (
-    TimeUnit,
-    Trajectory,
-    count_repeated_stamps,
-    read_trajectory,
-)
+from eurocslam.io.trajectory_io import TimeUnit, count_repeated_stamps, read_trajectory
+from eurocslam.trajectory import Trajectory
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 DEFAULT_EST_TOPIC = "/slam/pose"

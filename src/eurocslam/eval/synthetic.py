@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from eurocslam.geometry import F64, make_T, so3_exp
-from eurocslam.io.trajectory_io import Trajectory
+from eurocslam.trajectory import Trajectory
 
 T0_NS = 1_403_636_580_838_555_648  # an EuRoC-like epoch
 

@@ -1,12 +1,7 @@
 """Trajectory files: TUM and EuRoC CSV, read and write, with exact nanosecond timestamps.
 
-`Trajectory` holds poses of the body frame in some world frame (`T_world_body`):
-
-* `t_ns`: int64 nanoseconds, non-decreasing within each segment (repeats are kept, as evo does);
-* `p`: (N, 3) positions in metres;
-* `q_wxyz`: (N, 4) unit quaternions, w first (converted to/from x-first only via `geometry`);
-* `segment`: optional (N,) int64 segment id per pose. A SLAM run that resets starts a new
-  segment; each segment lives in its own world frame and is aligned on its own by `eval`.
+What is read and written is a `eurocslam.trajectory.Trajectory` (poses `T_world_body` with int64
+nanosecond times and optional segment ids; see that module).
 
 File formats
 ------------
@@ -41,183 +36,35 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
-from decimal import Decimal, InvalidOperation
+from decimal import InvalidOperation
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
 from eurocslam.errors import EvalError, OutputError
-from eurocslam.geometry import (
-    F64,
-    make_T,
-    quat_wxyz_to_rot,
-    rot_to_quat_wxyz,
-    wxyz_to_xyzw,
-    xyzw_to_wxyz,
-)
+from eurocslam.geometry import wxyz_to_xyzw, xyzw_to_wxyz
 from eurocslam.textfile import read_text
+from eurocslam.timebase import (
+    I64,
+    NS_PER_S,
+    FractionalNs,
+    Unit,
+    column_unit_mismatch,
+    int_ns,
+    looks_like_seconds,
+    ns_to_seconds_str,
+    seconds_str_to_ns,
+)
+from eurocslam.trajectory import Trajectory
 
-I64 = NDArray[np.int64]
 TimeUnit = Literal["auto", "s", "ns"]
 Format = Literal["auto", "tum", "euroc"]
-
-NS_PER_S = 1_000_000_000
-# Plausible bounds used to tell seconds from nanoseconds. Unix time in seconds is ~1.7e9 today,
-# in nanoseconds ~1.7e18. A time column in seconds above 1e11 (3,000 years) is nanoseconds; an
-# integer nanosecond column whose largest value is below 1e7 (10 ms) is seconds (relative
-# nanosecond times from 0, as synthetic sequences use, are far above that after a second).
-_SECONDS_MAX = 1e11
-_NS_MIN = 1e7
 
 EUROC_HEADER = (
     "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []"
 )
 _SEGMENT_RE = re.compile(r"^#\s*segment\s+(-?\d+)\s*$", re.IGNORECASE)
-_DEC_RE = re.compile(r"^([+-]?)(\d*)(?:\.(\d*))?$")
-
-
-@dataclass(frozen=True)
-class Trajectory:
-    """Timestamped poses `T_world_body`. See the module docstring for the fields."""
-
-    t_ns: I64
-    p: F64
-    q_wxyz: F64
-    segment: I64 | None = None
-    name: str = ""
-
-    def __post_init__(self) -> None:
-        t = np.asarray(self.t_ns)
-        if t.ndim != 1 or t.dtype != np.int64:
-            raise ValueError(f"Trajectory.t_ns must be int64[N], got {t.dtype}{list(t.shape)}")
-        n = t.shape[0]
-        if np.shape(self.p) != (n, 3):
-            raise ValueError(f"Trajectory.p must be ({n}, 3), got {np.shape(self.p)}")
-        if np.shape(self.q_wxyz) != (n, 4):
-            raise ValueError(f"Trajectory.q_wxyz must be ({n}, 4), got {np.shape(self.q_wxyz)}")
-        if self.segment is not None and np.shape(self.segment) != (n,):
-            raise ValueError(f"Trajectory.segment must be ({n},), got {np.shape(self.segment)}")
-
-    def __len__(self) -> int:
-        return int(self.t_ns.shape[0])
-
-    @classmethod
-    def from_poses(
-        cls, t_ns: I64, T_world_body: F64, segment: I64 | None = None, name: str = ""
-    ) -> Trajectory:
-        """Build from (N, 4, 4) rigid transforms."""
-        T = np.asarray(T_world_body, dtype=np.float64)
-        return cls(
-            np.asarray(t_ns, dtype=np.int64),
-            np.ascontiguousarray(T[:, :3, 3]),
-            rot_to_quat_wxyz(T[:, :3, :3]),
-            segment,
-            name,
-        )
-
-    def rotations(self) -> F64:
-        """(N, 3, 3) rotation matrices R_world_body."""
-        return quat_wxyz_to_rot(self.q_wxyz)
-
-    def T_world_body(self) -> F64:
-        """(N, 4, 4) poses."""
-        return make_T(self.rotations(), self.p)
-
-    @property
-    def has_segments(self) -> bool:
-        return self.segment is not None and np.unique(self.segment).size > 1
-
-    def take(self, idx: NDArray[np.integer] | slice) -> Trajectory:
-        """A new trajectory with the poses at `idx` (index array or slice)."""
-        seg = None if self.segment is None else self.segment[idx]
-        return Trajectory(self.t_ns[idx], self.p[idx], self.q_wxyz[idx], seg, self.name)
-
-    def segments(self) -> list[tuple[int, Trajectory]]:
-        """(segment id, poses) in order of first appearance; one entry (0) without segments."""
-        if self.segment is None:
-            return [(0, self)]
-        out = []
-        ids, first = np.unique(self.segment, return_index=True)
-        for sid in ids[np.argsort(first)]:
-            out.append((int(sid), self.take(np.flatnonzero(self.segment == sid))))
-        return out
-
-    def with_name(self, name: str) -> Trajectory:
-        return Trajectory(self.t_ns, self.p, self.q_wxyz, self.segment, name)
-
-    def duration_s(self) -> float:
-        return float(self.t_ns[-1] - self.t_ns[0]) / NS_PER_S if len(self) else 0.0
-
-    def path_length(self) -> float:
-        """Travelled distance in metres (sum of position steps within segments)."""
-        total = 0.0
-        for _, seg in self.segments():
-            if len(seg) > 1:
-                total += float(np.linalg.norm(np.diff(seg.p, axis=0), axis=1).sum())
-        return total
-
-
-# ---------------------------------------------------------------------------------------------
-# time parsing / formatting
-
-
-def seconds_str_to_ns(tok: str) -> int:
-    """Exact conversion of a decimal seconds string ('1403636580.838555648', '1.4e+09') to ns.
-
-    Digits beyond the nanosecond are rounded half away from zero. Raises ValueError.
-    """
-    ip, dot, fp = tok.partition(".")
-    if ip.isdigit() and (fp.isdigit() or (dot and not fp)) and len(fp) <= 9:
-        return int(ip) * NS_PER_S + (int(fp.ljust(9, "0")) if fp else 0)
-    m = _DEC_RE.match(tok)
-    if m and (m.group(2) or m.group(3)):
-        sign, ip, fp = m.group(1), m.group(2) or "0", m.group(3) or ""
-        frac = (fp + "000000000")[:9]
-        ns = int(ip) * NS_PER_S + int(frac)
-        if len(fp) > 9 and fp[9] >= "5":
-            ns += 1
-        return -ns if sign == "-" else ns
-    try:
-        d = Decimal(tok)
-    except InvalidOperation:
-        raise ValueError(tok) from None
-    if not d.is_finite():
-        raise ValueError(tok)
-    return int((d * NS_PER_S).to_integral_value(rounding="ROUND_HALF_UP"))
-
-
-def ns_to_seconds_str(t_ns: int) -> str:
-    """Exact decimal seconds with 9 digits: 1403636580838555648 -> '1403636580.838555648'."""
-    t = int(t_ns)
-    sign = "-" if t < 0 else ""
-    s, ns = divmod(abs(t), NS_PER_S)
-    return f"{sign}{s}.{ns:09d}"
-
-
-class _FractionalNs(ValueError):
-    """A nanosecond column holds a value with a fractional part (probably seconds)."""
-
-
-def _int_ns(tok: str) -> int:
-    """Integer nanoseconds; accepts '1403636580838555648' and '1403636580838555648.000000'
-    (ORB-SLAM style). A non-zero fractional part raises _FractionalNs."""
-    try:
-        return int(tok)
-    except ValueError:
-        pass
-    m = _DEC_RE.match(tok)
-    if m and m.group(2):
-        if (m.group(3) or "").strip("0"):
-            raise _FractionalNs(tok)
-        return int(m.group(1) + m.group(2))
-    d = Decimal(tok)  # raises InvalidOperation -> caller reports
-    if not d.is_finite():
-        raise ValueError(tok)
-    if d != d.to_integral_value():
-        raise _FractionalNs(tok)
-    return int(d)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -307,24 +154,24 @@ def _detect_layout(path: Path, lines: list[str], fmt: Format) -> _Layout:
 
 
 def _check_time_unit(
-    path: Path, t_ns: I64, unit_in_file: str, lines: np.ndarray, time_unit: TimeUnit
+    path: Path, t_ns: I64, unit_in_file: Unit, lines: np.ndarray, time_unit: TimeUnit
 ) -> None:
-    """Catch seconds-vs-nanoseconds mix-ups from the magnitudes."""
-    if time_unit != "auto" or t_ns.size == 0:
+    """Catch seconds-vs-nanoseconds mix-ups from the magnitudes (`timebase`'s rule)."""
+    if time_unit != "auto":
         return
-    mag = float(np.max(np.abs(t_ns)))
-    if unit_in_file == "s" and mag / NS_PER_S > _SECONDS_MAX:
-        k = int(np.argmax(np.abs(t_ns)))
+    k = column_unit_mismatch(t_ns, unit_in_file)
+    if k is None:
+        return
+    mag = float(abs(t_ns[k]))
+    if unit_in_file == "s":
         raise EvalError(
             f"{path}:{lines[k]}: timestamp {mag / NS_PER_S:.6g} s looks like nanoseconds; TUM "
             "time is in seconds (pass --time-unit ns if this file really holds nanoseconds)"
         )
-    if unit_in_file == "ns" and 0 < mag < _NS_MIN:
-        k = int(np.argmax(np.abs(t_ns)))
-        raise EvalError(
-            f"{path}:{lines[k]}: timestamp {mag:.6g} ns looks like seconds; EuRoC CSV time is "
-            "integer nanoseconds (pass --time-unit s if this file really holds seconds)"
-        )
+    raise EvalError(
+        f"{path}:{lines[k]}: timestamp {mag:.6g} ns looks like seconds; EuRoC CSV time is "
+        "integer nanoseconds (pass --time-unit s if this file really holds seconds)"
+    )
 
 
 def read_trajectory(
@@ -343,9 +190,9 @@ def read_trajectory(
     path = Path(path)
     lines = _read_lines(path)
     lay = _detect_layout(path, lines, fmt)
-    file_unit = "s" if lay.fmt == "tum" else "ns"
-    unit = file_unit if time_unit == "auto" else time_unit
-    to_ns = seconds_str_to_ns if unit == "s" else _int_ns
+    file_unit: Unit = "s" if lay.fmt == "tum" else "ns"
+    unit: Unit = file_unit if time_unit == "auto" else time_unit
+    to_ns = seconds_str_to_ns if unit == "s" else int_ns
 
     # pass 1 (plain Python, cheap): data lines, their tokens and segment ids
     rows: list[list[str]] = []
@@ -390,8 +237,8 @@ def read_trajectory(
             raise EvalError(
                 f"{path}:{line_no[k]}: timestamp '{parts[0]}' is out of range{hint}"
             ) from None
-        except _FractionalNs:
-            if time_unit == "ns":
+        except FractionalNs:
+            if time_unit == "ns" or not looks_like_seconds(parts[0]):
                 raise EvalError(
                     f"{path}:{line_no[k]}: timestamp '{parts[0]}' is not an integer number of ns"
                 ) from None
@@ -432,7 +279,7 @@ def read_trajectory(
                 ) from None
     else:
         seg = np.asarray(seg_ids, dtype=np.int64)
-    _check_time_unit(path, t, file_unit if time_unit == "auto" else time_unit, lineno, time_unit)
+    _check_time_unit(path, t, unit, lineno, time_unit)
 
     q_raw = vals[:, 3:7] if lay.w_first else xyzw_to_wxyz(vals[:, 3:7])
     qn = np.linalg.norm(q_raw, axis=1)
@@ -500,8 +347,8 @@ def _segment_starts(traj: Trajectory) -> list[tuple[int, int]]:
     if traj.segment is None:
         return []
     s = traj.segment
-    starts = [0, *list(np.flatnonzero(np.diff(s) != 0) + 1)] if len(s) else []
-    return [(int(i), int(s[i])) for i in starts]
+    starts = [0, *(np.flatnonzero(np.diff(s) != 0) + 1).tolist()] if len(s) else []
+    return [(i, int(s[i])) for i in starts]
 
 
 def format_tum(traj: Trajectory, header: str | None = None) -> str:

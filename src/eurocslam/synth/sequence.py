@@ -13,24 +13,24 @@ import cv2
 import numpy as np
 
 from eurocslam.dataset.calib import StereoRig, default_rig, load_rig
-from eurocslam.dataset.synth import writer
-from eurocslam.dataset.synth.imu import (
+from eurocslam.errors import DatasetError
+from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
+from eurocslam.synth import writer
+from eurocslam.synth.imu import (
     ImuStream,
     read_real_imu,
     real_imu_stream,
     simulate_imu,
 )
-from eurocslam.dataset.synth.render import CameraModel, camera_model, cast_and_shade
-from eurocslam.dataset.synth.trajectory import (
+from eurocslam.synth.render import CameraModel, camera_model, cast_and_shade
+from eurocslam.synth.trajectory import (
     BUILTIN_T0_NS,
     Motion,
     builtin_motion,
     motion_from_groundtruth,
     read_groundtruth_file,
 )
-from eurocslam.dataset.synth.world import Marker, World, build_world
-from eurocslam.errors import DatasetError
-from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
+from eurocslam.synth.world import Marker, World, build_world
 
 # bump whenever the same spec would give different files (caches compare it)
 GENERATOR_REVISION = 5

@@ -3,7 +3,7 @@
 For windows of a few lengths, starting every few samples: the angle between the gyro's rotation
 (minus the ground truth's mean gyro bias, midpoint rule) and the ground truth's relative
 rotation, and the |delta-v| error of the accelerometer (minus the mean accel bias) rotated by the
-ground-truth orientation, with gravity `trajectory.GRAVITY` (9.81 m/s^2 along -z). Medians over
+ground-truth orientation, with gravity `kinematics.GRAVITY` (9.81 m/s^2 along -z). Medians over
 the windows ("-": none, the sequence is shorter than the window). Biases are
 taken constant (the means of the bias columns): that is what an estimator whose bias is a slow
 random walk can follow. Over 0.05/0.2/1/5 s, the full-length simulated-IMU replicas of V1_01,
@@ -15,7 +15,7 @@ and 7.2/13.4/50/198 mm/s).
 The measure needs the ground truth at the IMU's own stamps (it rotates every accelerometer
 sample by it), as a synthetic sequence writes it; a real sequence's (V1_01: 20 Hz) is refused.
 
-    .venv/bin/python -m eurocslam.dataset.synth.consistency SEQUENCE [SEQUENCE ...]
+    .venv/bin/python -m eurocslam.synth.consistency SEQUENCE [SEQUENCE ...]
 """
 
 from __future__ import annotations
@@ -26,11 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from eurocslam.dataset.synth.imu import integrate_gyro
-from eurocslam.dataset.synth.spline import so3_log_batch
-from eurocslam.dataset.synth.trajectory import GRAVITY
 from eurocslam.errors import DatasetError, EurocSlamError
 from eurocslam.geometry import F64, quat_wxyz_to_rot
+from eurocslam.synth.kinematics import GRAVITY, integrate_gyro
+from eurocslam.synth.spline import so3_log_batch
 
 WINDOWS_S = (0.05, 0.2, 1.0, 5.0)
 MIN_COVERAGE = 0.95  # share of the IMU stamps the ground truth must have a row at

@@ -93,7 +93,7 @@ def make_texture(
     """A non-periodic, corner-rich uint8 texture of w x h texels."""
     # smooth shading (low-frequency noise) so no two places look alike
     low = rng.random((max(2, h // 160 + 2), max(2, w // 160 + 2))).astype(np.float32)
-    low = cv2.resize(low, (w, h), interpolation=cv2.INTER_CUBIC)
+    low = np.asarray(cv2.resize(low, (w, h), interpolation=cv2.INTER_CUBIC), dtype=np.float32)
     img = np.full((h, w), mean, np.float32)
     canvas = np.zeros((h, w), np.uint8)
     canvas[:] = int(np.clip(mean, 0, 255))
@@ -162,7 +162,7 @@ def make_texture(
             )
     img = canvas.astype(np.float32) * (0.7 + 0.5 * low)
     img += rng.normal(0.0, 3.0, (h, w)).astype(np.float32)  # grain
-    img = cv2.GaussianBlur(img, (0, 0), 0.6)
+    img = np.asarray(cv2.GaussianBlur(img, (0, 0), 0.6), dtype=np.float32)
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
@@ -277,7 +277,8 @@ def build_world(
                         else ("ceiling" if axis == 2 else "wall")
                     )
                 if style == "marker":
-                    disc_side = marker.side if marker is not None else 0
+                    assert marker is not None
+                    disc_side = marker.side
                     fstyle = "disc" if (axis == marker.axis and side == disc_side) else "plate"
                 faces.append(
                     (axis, b_hi[sa] - b_lo[sa], b_hi[ta] - b_lo[ta], b_lo[sa], b_lo[ta], fstyle)

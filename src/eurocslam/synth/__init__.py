@@ -5,21 +5,21 @@ through the real camera model, 200 Hz IMU, 17-column ground truth, sensor.yaml f
 eurocslam command reads. The motion is a built-in drone flight or a given ground truth (a
 "semi-real replica" of a real EuRoC sequence); the IMU is simulated or the real rows.
 
-    from eurocslam.dataset.synth import SynthSpec, synthesize
+    from eurocslam.synth import SynthSpec, synthesize
     seq = synthesize(SynthSpec.tiny(seed=3), tmp_path / "seq")   # ~2 s, a few seconds to make
 
 `Scene.build(spec)` gives the same world without writing files (render single frames, with
 depth maps, for tests).
 """
 
-from eurocslam.dataset.synth.sequence import (
+from eurocslam.synth.sequence import (
     DEFAULT_DURATION_S,
     TINY_DURATION_S,
     Scene,
     SynthSpec,
     synthesize,
 )
-from eurocslam.dataset.synth.world import Marker
+from eurocslam.synth.world import Marker
 
 __all__ = [
     "DEFAULT_DURATION_S",

@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 
 from eurocslam.dataset.calib import CameraCalib
-from eurocslam.dataset.synth.world import MIP_LEVELS, ST_AXES, World
 from eurocslam.geometry import F64
+from eurocslam.synth.world import MIP_LEVELS, ST_AXES, World
 
 F32 = np.float32
 NEAR = 0.02
@@ -40,7 +40,7 @@ def distort(cam: CameraCalib, x: F64, y: F64) -> tuple[F64, F64]:
 def undistort_pixels(cam: CameraCalib, u: F64, v: F64, iters: int = 20) -> tuple[F64, F64]:
     """Pixel -> normalised coordinates, Newton on the distortion model (numeric Jacobian)."""
     pts = np.stack([u.ravel(), v.ravel()], -1).reshape(-1, 1, 2).astype(np.float64)
-    n = cv2.undistortPoints(pts, cam.K, cam.D).reshape(-1, 2)
+    n: F64 = np.asarray(cv2.undistortPoints(pts, cam.K, cam.D), dtype=np.float64).reshape(-1, 2)
     x, y = n[:, 0].copy(), n[:, 1].copy()
     uu, vv = u.ravel().astype(np.float64), v.ravel().astype(np.float64)
     h = 1e-7
@@ -276,6 +276,7 @@ def cast_and_shade(
             if tn is None:
                 tn, tf, ax = tmin, tmax, np.zeros(tmin.shape, np.int8)
             else:
+                assert tf is not None and ax is not None
                 np.copyto(ax, a, where=tmin > tn)
                 tn = np.maximum(tn, tmin)
                 tf = np.minimum(tf, tmax)

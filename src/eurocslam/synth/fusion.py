@@ -46,10 +46,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_banded
 
-from eurocslam.dataset.synth.imu import integrate_gyro, midpoint_rates
-from eurocslam.dataset.synth.spline import so3_exp_batch, so3_log_batch
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import F64, rotation_between
+from eurocslam.synth.kinematics import integrate_gyro, midpoint_rates
+from eurocslam.synth.spline import so3_exp_batch, so3_log_batch
 
 TAU_ROT_S = 10.0
 TAU_POS_S = 0.3

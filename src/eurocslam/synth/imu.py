@@ -20,10 +20,10 @@ import numpy as np
 
 from eurocslam.dataset.asl import read_numeric_csv
 from eurocslam.dataset.calib import ImuCalib
-from eurocslam.dataset.synth.spline import SplineTrajectory, so3_exp_batch
-from eurocslam.dataset.synth.trajectory import GRAVITY
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import F64
+from eurocslam.synth.kinematics import GRAVITY
+from eurocslam.synth.spline import SplineTrajectory
 
 # spread of the initial biases (EuRoC's own are ~0.02-0.08 rad/s and ~0.02-0.14 m/s^2)
 INITIAL_GYRO_BIAS_SIGMA = 0.02
@@ -46,26 +46,6 @@ def ideal_imu(spline: SplineTrajectory, t_s: F64) -> tuple[F64, F64]:
     f_world = st.a - GRAVITY
     accel = np.einsum("nji,nj->ni", st.R, f_world)  # R^T f
     return st.w_body, accel
-
-
-def midpoint_rates(gyro: F64, bg: F64) -> F64:
-    """The bias-corrected angular rate over each IMU interval (midpoint rule), (N-1, 3); bg is
-    per sample (N, 3) or constant (3,)."""
-    bg = np.broadcast_to(bg, gyro.shape)
-    return 0.5 * (gyro[1:] + gyro[:-1]) - 0.5 * (bg[1:] + bg[:-1])
-
-
-def integrate_gyro(t_ns: np.ndarray, gyro: F64, bg: F64) -> F64:
-    """The gyro (minus bias bg, (N, 3) or (3,)) integrated with the midpoint rule from the
-    identity at t_ns[0]: R(t_k) (N, 3, 3), body at t_k into body at t_0, re-orthonormalised."""
-    h = np.diff(t_ns).astype(np.float64) * 1e-9
-    steps = so3_exp_batch(midpoint_rates(gyro, bg) * h[:, None])
-    P = np.empty((t_ns.size, 3, 3))
-    P[0] = np.eye(3)
-    for i in range(h.size):
-        P[i + 1] = P[i] @ steps[i]
-    u, _, vt = np.linalg.svd(P)
-    return u @ vt
 
 
 def simulate_imu(

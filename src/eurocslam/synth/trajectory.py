@@ -18,11 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from eurocslam.dataset.asl import read_numeric_csv
-from eurocslam.dataset.synth.spline import SplineTrajectory, fit_spline
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import F64, quat_wxyz_to_rot, rot_to_quat_wxyz
+from eurocslam.synth.fusion import fuse_imu_groundtruth
+from eurocslam.synth.kinematics import GRAVITY
+from eurocslam.synth.spline import SplineTrajectory, fit_spline
 
-GRAVITY = np.array([0.0, 0.0, -9.81])
 BUILTIN_T0_NS = 1_400_000_000_000_000_000  # a realistic epoch (2014-05-13), like EuRoC's
 
 
@@ -62,7 +63,7 @@ def builtin_motion(
         raise DatasetError(f"duration {duration_s:g} s: the built-in motion needs at least 0.2 s")
     rng = np.random.default_rng([seed, 0x5EED])
     dt = 0.005
-    t = np.arange(round((duration_s + 1.0) / dt) + 1) * dt  # 1 s margin for the fit
+    t: F64 = np.asarray(np.arange(round((duration_s + 1.0) / dt) + 1) * dt, dtype=np.float64)
     rest = float(np.clip(0.08 * duration_s, 0.3, 2.0))
     hover = float(rng.uniform(1.1, 1.6))
     if duration_s >= 8.0:
@@ -97,9 +98,9 @@ def builtin_motion(
     # yaw: smooth random profile, peak rate = max_yaw_rate
     yaw = np.zeros(t.size)
     for _ in range(3):
-        f = rng.uniform(0.05, 0.25) * 2 * np.pi
-        ph = rng.uniform(0, 2 * np.pi)
-        yaw += rng.uniform(0.5, 1.0) * (np.sin(f * (t - t_loop) + ph) - np.sin(ph))
+        fy = rng.uniform(0.05, 0.25) * 2 * np.pi
+        phy = rng.uniform(0, 2 * np.pi)
+        yaw += rng.uniform(0.5, 1.0) * (np.sin(fy * (t - t_loop) + phy) - np.sin(phy))
     yaw += rng.choice([-1.0, 1.0]) * 0.3 * (t - t_loop)  # a slow overall turn
     yaw = yaw * ramp
     yaw *= max_yaw_rate / max(float(np.max(np.abs(np.gradient(yaw, dt)))), 1e-9)
@@ -246,8 +247,6 @@ def _imu_spline(
     swing by 20-100 mm/s^2 within 5 s, but that fit used its own orientation, whose tilt the
     accelerometer and gyro both disagree with; a constant bias imports none of it, and what the
     real accelerometer does beyond it stays in the replica as the IMU's own error."""
-    from eurocslam.dataset.synth.fusion import fuse_imu_groundtruth
-
     t_imu, gyro, accel = imu
     m = (t_imu >= gt.t_ns[0]) & (t_imu <= gt.t_ns[-1])
     lo, hi = int(gt.t_ns[sel][0]), int(gt.t_ns[sel][-1])

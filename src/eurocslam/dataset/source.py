@@ -1,0 +1,50 @@
+"""Opening any input sequence: an EuRoC ASL folder or a ROS bag / MCAP, by what the path is."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from pathlib import Path
+
+from eurocslam.dataset.asl import AslSequence
+from eurocslam.dataset.bag.files import is_bag_path
+from eurocslam.dataset.bag.reader import BagSequence
+from eurocslam.dataset.bag.topics import TopicMap
+from eurocslam.dataset.calib import StereoRig, load_rig
+from eurocslam.errors import DatasetError
+
+logger = logging.getLogger(__name__)
+
+
+def open_sequence(
+    path: Path | str,
+    rig: StereoRig | None = None,
+    *,
+    calib: Path | str | None = None,
+    topics: TopicMap | Mapping[str, str] | None = None,
+    quiet: bool = False,
+) -> AslSequence | BagSequence:
+    """Open an input sequence: an EuRoC ASL folder (or its `mav0/`), a ROS 1 `.bag`, a ROS 2 bag
+    folder (`metadata.yaml`), a `.db3` or an `.mcap` (including `eurocslam convert` output).
+
+    `rig` wins over `calib` (a folder of cam0/cam1/imu0 `sensor.yaml` files); `topics` maps bag
+    topics to roles (`{"cam0": "/my/left"}`, bags only). Notes (calibration fallback, stamp
+    source) are logged (INFO) unless `quiet`; they stay in the source's `notes`.
+    """
+    p = Path(path)
+    if is_bag_path(p):
+        seq = BagSequence(p, rig, calib=calib, topics=topics)
+        if not quiet:
+            for note in seq.notes:
+                logger.info("note: %s", note)
+        return seq
+    if topics:
+        raise DatasetError(f"{p}: --topic applies to ROS bags and MCAP inputs, not ASL folders")
+    if p.is_file():
+        raise DatasetError(
+            f"{p}: not a recognised input (expected an EuRoC ASL folder, a .bag, .db3 or .mcap "
+            "file, or a ROS 2 bag folder)"
+        )
+    if rig is None and calib is not None:
+        rig = load_rig(Path(calib))
+    return AslSequence(path, rig)
