@@ -129,13 +129,14 @@ def run_task(task: RunTask, mode: str, cache: str | None) -> tuple[dict[str, Any
     if mode == "shared":
         return execute(task, seq, task.out_dir, who).to_dict(), None
     (root / "runs").mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix="run_", dir=root / "runs"))
+    tmp = Path(tempfile.mkdtemp(dir=root / "runs"))
+    run = tmp / task.out_dir.name  # the same folder name as in OUT (run_K)
     try:
-        rec = execute(task, seq, tmp, who)
+        rec = execute(task, seq, run, who)
         if rec.error:
-            rec.error = rec.error.replace(str(tmp), str(task.out_dir))
+            rec.error = rec.error.replace(str(run), str(task.out_dir))
         files = {
-            p.relative_to(tmp).as_posix(): p.read_bytes() for p in tmp.rglob("*") if p.is_file()
+            p.relative_to(run).as_posix(): p.read_bytes() for p in run.rglob("*") if p.is_file()
         }
         return rec.to_dict(), files
     finally:
