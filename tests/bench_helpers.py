@@ -3,7 +3,9 @@ sequences that hold only a ground truth."""
 
 from __future__ import annotations
 
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 from eurocslam.eval.synthetic import smooth_trajectory
@@ -26,7 +28,11 @@ if "broken" in seq.name:
     print("fake run: simulated crash", file=sys.stderr)
     sys.exit(3)
 if "slow" in seq.name:
-    time.sleep(60)
+    try:
+        time.sleep(60)
+    except KeyboardInterrupt:  # stopped as a Ctrl-C stops a run: it can clean up
+        (out / "fake_interrupted").write_text("SIGINT")
+        raise
 if "dies" in seq.name:
     os.kill(os.getppid(), signal.SIGKILL)
     sys.exit(9)
@@ -60,3 +66,31 @@ def fake_run_cmd(tmp: Path) -> str:
 def calls(root: Path) -> list[str]:
     f = root / "calls.txt"
     return f.read_text().splitlines() if f.exists() else []
+
+
+class StderrLines:
+    """Collects a running process's stderr lines in a thread (to wait for a progress line)."""
+
+    def __init__(self, p: subprocess.Popen[str]) -> None:
+        import threading
+
+        self.lines: list[str] = []
+        self._p = p
+        self._t = threading.Thread(target=self._read, daemon=True)
+        self._t.start()
+
+    def _read(self) -> None:
+        assert self._p.stderr is not None
+        for line in self._p.stderr:
+            self.lines.append(line)
+
+    def wait_for(self, text: str, timeout: float) -> None:
+        t_end = time.monotonic() + timeout
+        while not any(text in ln for ln in self.lines):
+            if self._p.poll() is not None or time.monotonic() > t_end:
+                raise AssertionError(f"no {text!r} in the output:\n{''.join(self.lines)}")
+            time.sleep(0.05)
+
+    def text(self) -> str:
+        self._t.join(timeout=30)
+        return "".join(self.lines)

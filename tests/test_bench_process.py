@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 import threading
 import time
@@ -65,6 +66,20 @@ def test_a_run_that_ignores_sigint_is_killed(
     t = time.monotonic()
     r = run_process([sys.executable, "-c", code], tmp_path / "l", timeout_s=1.0)
     assert r.timed_out and time.monotonic() - t < 10  # SIGINT, a grace period, then SIGKILL
+
+
+def test_the_run_does_not_inherit_a_blocked_sigint(tmp_path: Path) -> None:
+    """Ray workers run tasks with SIGINT blocked; a run started there must still be stoppable
+    by SIGINT (its clean stop), so the runner unblocks it in the child."""
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        log = tmp_path / "l"
+        r = run_process(["grep", "SigBlk", "/proc/self/status"], log, header=False)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+    assert r.returncode == 0
+    mask = int(last_line(log).split()[1], 16)
+    assert not mask & (1 << (signal.SIGINT - 1))
 
 
 def test_command_that_cannot_start(tmp_path: Path) -> None:

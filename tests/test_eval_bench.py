@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from bench_helpers import calls, fake_run_cmd, gt_sequence
+from bench_helpers import StderrLines, calls, fake_run_cmd, gt_sequence
 from eurocslam.cli import main
 from eurocslam.errors import ConfigError
 from eurocslam.eval.bench import load_plan, published_key
@@ -197,21 +197,24 @@ def test_ctrl_c_stops_running_runs_and_keeps_finished(tmp_path: Path, fake: str)
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "eurocslam.cli", "bench", str(tmp_path / "fast")]
     cmd += [str(tmp_path / "slow"), "-o", str(out), "--jobs", "2", "--run-cmd", fake]
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    err = StderrLines(p)
+    err.wait_for("fast run 0: ATE", timeout=60)
     slow_pid = out / "runs/default/slow/run_0/fake_pid"
-    t_end = time.monotonic() + 60
-    while not (slow_pid.exists() and (out / "runs/default/fast/run_0/bench_run.json").exists()):
-        assert time.monotonic() < t_end and p.poll() is None
-        time.sleep(0.1)
+    t_end = time.monotonic() + 30
+    while not slow_pid.exists():
+        assert time.monotonic() < t_end
+        time.sleep(0.05)
     p.send_signal(signal.SIGINT)
-    _, err = p.communicate(timeout=30)
-    assert p.returncode == 130, err
-    assert "interrupted after 1 of 2 runs" in err
+    p.wait(timeout=30)
+    assert p.returncode == 130, err.text()
+    assert "interrupted after 1 of 2 runs" in err.text()
     data = json.loads((out / "bench.json").read_text())
     assert [r["sequence"] for r in data["runs"]] == ["fast"]
     pid = int(slow_pid.read_text())
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)  # the slow run was stopped (and reaped), not left running
+    assert (out / "runs/default/slow/run_0/fake_interrupted").exists()  # by a SIGINT
 
 
 def test_ray_executor_without_ray_says_how_to_install(

@@ -25,6 +25,7 @@ from pathlib import Path
 
 _POLL_S = 0.05
 _TERM_GRACE_S = 5.0
+_OWN_SIGINT_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -39,22 +40,40 @@ class ProcessResult:
     timed_out: bool = False
 
 
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
+def _unblock_stop_signals() -> None:  # pragma: no cover - runs in the child, before exec
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
+
+
 def _reap(pid: int, block: bool) -> tuple[int, os.struct_rusage] | None:
     """(wait status, usage) once `pid` has ended; None while it runs (non-blocking)."""
     wpid, status, usage = os.wait4(pid, 0 if block else os.WNOHANG)
     return (status, usage) if wpid == pid else None
 
 
-def _stop(p: subprocess.Popen[bytes]) -> tuple[int, os.struct_rusage]:
-    """Interrupt (what a Ctrl-C does: the run cleans up), wait a little, kill; reap."""
+def _wait(p: subprocess.Popen[bytes], seconds: float) -> tuple[int, os.struct_rusage] | None:
+    t_end = time.monotonic() + seconds
+    while True:
+        done = _reap(p.pid, block=False)
+        if done is not None or time.monotonic() >= t_end:
+            return done
+        time.sleep(_POLL_S)
+
+
+def _stop(p: subprocess.Popen[bytes], own_sigint: bool = False) -> tuple[int, os.struct_rusage]:
+    """Interrupt (what a Ctrl-C does: the run cleans up), wait a little, kill; reap.
+    `own_sigint`: the run may have had the terminal's Ctrl-C already; give it a moment first."""
+    if own_sigint:
+        done = _wait(p, _OWN_SIGINT_S)
+        if done is not None:
+            return done
     try:
         p.send_signal(signal.SIGINT)
-        t_end = time.monotonic() + _TERM_GRACE_S
-        while time.monotonic() < t_end:
-            done = _reap(p.pid, block=False)
-            if done is not None:
-                return done
-            time.sleep(_POLL_S)
+        done = _wait(p, _TERM_GRACE_S)
+        if done is not None:
+            return done
         p.kill()
     except ProcessLookupError:  # pragma: no cover - ended and reaped meanwhile
         pass
@@ -80,9 +99,16 @@ def run_process(
         if header:
             f.write("$ " + shlex.join(cmd) + "\n")
             f.flush()
+        # a Ray worker runs tasks with SIGINT blocked, and a child inherits the mask: the run
+        # would never see the SIGINT that stops it cleanly; unblock it in the child
+        blocked = _STOP_SIGNALS & signal.pthread_sigmask(signal.SIG_BLOCK, [])
         t0 = time.perf_counter()
         p = subprocess.Popen(
-            list(cmd), stdout=f, stderr=subprocess.STDOUT, env=dict(env) if env else None
+            list(cmd),
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=dict(env) if env else None,
+            preexec_fn=_unblock_stop_signals if blocked else None,
         )
         timed_out = False
         try:
@@ -97,8 +123,8 @@ def run_process(
                     done = _stop(p)
                     break
                 time.sleep(_POLL_S)
-        except BaseException:
-            _stop(p)
+        except BaseException as e:
+            _stop(p, own_sigint=isinstance(e, KeyboardInterrupt))
             p.returncode = -1
             raise
         status, usage = done

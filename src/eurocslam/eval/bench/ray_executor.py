@@ -22,7 +22,6 @@ Ray is an optional dependency (`pip install 'eurocslam[ray]'`), imported only he
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import logging
 import shutil
 import socket
@@ -35,7 +34,14 @@ from typing import Any
 from eurocslam.errors import ConfigError
 from eurocslam.eval.bench.plan import SYNTH_PATH_KEYS
 from eurocslam.eval.bench.sequences import check_sequence_folder, ensure_synth, synth_cache_name
-from eurocslam.eval.bench.task import RunRecord, RunTask, execute, worker_identity, write_record
+from eurocslam.eval.bench.task import (
+    RunRecord,
+    RunTask,
+    execute,
+    package_digest,
+    worker_identity,
+    write_record,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -55,17 +61,6 @@ def _import_ray() -> Any:
     except ImportError:
         raise ConfigError(INSTALL_HINT) from None
     return ray
-
-
-def package_digest() -> tuple[str, str]:
-    """(folder, hash of every .py file) of the eurocslam package this process imports."""
-    import eurocslam
-
-    root = Path(eurocslam.__file__).resolve().parent
-    h = hashlib.sha256()
-    for p in sorted(root.rglob("*.py")):
-        h.update(p.relative_to(root).as_posix().encode() + b"\0" + p.read_bytes() + b"\0")
-    return str(root), h.hexdigest()[:16]
 
 
 def default_cache() -> Path:
@@ -133,8 +128,9 @@ def run_task(task: RunTask, mode: str, cache: str | None) -> tuple[dict[str, Any
     run = tmp / task.out_dir.name  # the same folder name as in OUT (run_K)
     try:
         rec = execute(task, seq, run, who)
-        if rec.error:
+        if rec.error:  # name the folder the files end up in
             rec.error = rec.error.replace(str(run), str(task.out_dir))
+        rec.command = [c.replace(str(run), str(task.out_dir)) for c in rec.command]
         files = {
             p.relative_to(run).as_posix(): p.read_bytes() for p in run.rglob("*") if p.is_file()
         }

@@ -31,9 +31,14 @@ def _spec_text(synth: dict[str, Any]) -> str:
     return json.dumps({"spec": synth, "generator_revision": GENERATOR_REVISION}, sort_keys=True)
 
 
+def synth_key(synth: dict[str, Any]) -> str:
+    """What identifies a rendering: the spec and the generator's revision."""
+    return hashlib.sha256(_spec_text(synth).encode()).hexdigest()[:12]
+
+
 def synth_cache_name(name: str, synth: dict[str, Any]) -> str:
-    """A folder name for a spec in a shared cache: the name and a hash of the spec."""
-    return f"{name}-{hashlib.sha256(_spec_text(synth).encode()).hexdigest()[:12]}"
+    """A folder name for a spec in a shared cache: the name and its `synth_key`."""
+    return f"{name}-{synth_key(synth)}"
 
 
 def check_synth_spec(name: str, synth: dict[str, Any]) -> None:

@@ -8,6 +8,7 @@ evaluation's), also written as `bench_run.json` beside the outputs so a later be
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -101,9 +102,13 @@ class RunTask:
         return f"{self.sequence} {self.config} run {self.index}"
 
     def fingerprint(self) -> str:
-        """What decides the run's result: a finished run with the same fingerprint is reused."""
+        """What decides the run's result: a finished run with the same fingerprint is reused.
+        The eurocslam code is part of it (a run made by other code is not this bench's)."""
+        from eurocslam.eval.bench.sequences import synth_key
+
         what = {
-            "sequence": str(self.seq_path) if self.seq_path else self.synth,
+            "code": package_digest()[1],
+            "sequence": str(self.seq_path) if self.seq_path else synth_key(self.synth or {}),
             "config": self.config_text,
             "cmd": list(self.cmd_template),
             "run_args": list(self.run_args),
@@ -112,6 +117,19 @@ class RunTask:
         }
         blob = json.dumps(what, sort_keys=True, default=str).encode()
         return hashlib.sha256(blob).hexdigest()[:16]
+
+
+@functools.lru_cache(maxsize=1)
+def package_digest() -> tuple[str, str]:
+    """(folder, hash of every .py file) of the eurocslam package this process imports: Ray
+    nodes must run the same code, and a finished run is reused only when made by it."""
+    import eurocslam
+
+    root = Path(eurocslam.__file__).resolve().parent
+    h = hashlib.sha256()
+    for p in sorted(root.rglob("*.py")):
+        h.update(p.relative_to(root).as_posix().encode() + b"\0" + p.read_bytes() + b"\0")
+    return str(root), h.hexdigest()[:16]
 
 
 def _brief(r: EvalResult | None) -> dict[str, Any] | None:
@@ -165,6 +183,7 @@ class RunRecord:
     final: dict[str, Any] | None = None
     online: dict[str, Any] | None = None
     summary: dict[str, Any] | None = None
+    command: list[str] = field(default_factory=list)
     worker: dict[str, Any] = field(default_factory=dict)  # who ran it: executor, host, pid...
     fingerprint: str = ""
     resumed: bool = False  # taken from a previous bench in the same folder
@@ -256,6 +275,7 @@ def execute(
         (out_dir / CONFIG_FILE).write_text(task.config_text)
         extra += ["--config", str(out_dir / CONFIG_FILE)]
     cmd = expand_cmd(task.cmd_template, seq, out_dir, task.no_imu, extra)
+    rec.command = cmd
     log = out_dir / LOG_FILE
     try:
         p = run_process(cmd, log, timeout_s=task.timeout_s, cancel=cancel)
