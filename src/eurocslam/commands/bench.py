@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from eurocslam.commands._args import add_alignment_arguments, positive_float
+
+if TYPE_CHECKING:  # the library is imported when the command runs, not for --help
+    from eurocslam.eval.bench import BenchOptions
 
 NAME = "bench"
 HELP = "run + eval over many sequences and configurations, N runs each, median table"
@@ -117,7 +121,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _options(args: argparse.Namespace, runs: int):  # type: ignore[no-untyped-def]
+def _options(args: argparse.Namespace, runs: int) -> BenchOptions:
     from eurocslam.errors import ConfigError
     from eurocslam.eval.bench import BenchOptions, parse_run_cmd
     from eurocslam.eval.evaluate import EvalConfig
@@ -163,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     plan = add_configs(plan, [parse_config_arg(a) for a in args.config], args.no_mcap)
     runs = args.runs if args.runs is not None else (plan.runs or 1)
     opts = _options(args, runs)
-    executor = {"name": opts.executor}
+    executor: dict[str, object] = {"name": opts.executor}
     if opts.executor == "ray":
         executor.update(address=opts.address, cpus_per_run=opts.cpus_per_run)
     try:

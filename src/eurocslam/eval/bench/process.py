@@ -14,6 +14,7 @@ Used by `eurocslam bench` (local processes and Ray workers) and by `benchmarks/b
 from __future__ import annotations
 
 import os
+import resource
 import shlex
 import signal
 import subprocess
@@ -47,13 +48,13 @@ def _unblock_stop_signals() -> None:  # pragma: no cover - runs in the child, be
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _STOP_SIGNALS)
 
 
-def _reap(pid: int, block: bool) -> tuple[int, os.struct_rusage] | None:
+def _reap(pid: int, block: bool) -> tuple[int, resource.struct_rusage] | None:
     """(wait status, usage) once `pid` has ended; None while it runs (non-blocking)."""
     wpid, status, usage = os.wait4(pid, 0 if block else os.WNOHANG)
     return (status, usage) if wpid == pid else None
 
 
-def _wait(p: subprocess.Popen[bytes], seconds: float) -> tuple[int, os.struct_rusage] | None:
+def _wait(p: subprocess.Popen[bytes], seconds: float) -> tuple[int, resource.struct_rusage] | None:
     t_end = time.monotonic() + seconds
     while True:
         done = _reap(p.pid, block=False)
@@ -62,7 +63,9 @@ def _wait(p: subprocess.Popen[bytes], seconds: float) -> tuple[int, os.struct_ru
         time.sleep(_POLL_S)
 
 
-def _stop(p: subprocess.Popen[bytes], own_sigint: bool = False) -> tuple[int, os.struct_rusage]:
+def _stop(
+    p: subprocess.Popen[bytes], own_sigint: bool = False
+) -> tuple[int, resource.struct_rusage]:
     """Interrupt (what a Ctrl-C does: the run cleans up), wait a little, kill; reap.
     `own_sigint`: the run may have had the terminal's Ctrl-C already; give it a moment first."""
     if own_sigint:

@@ -66,7 +66,9 @@ def ensure_synth(name: str, synth: dict[str, Any], dest: Path, progress: bool | 
         fcntl.flock(lock, fcntl.LOCK_EX)  # another task on this machine may be rendering it
         if spec_file.exists() and spec_file.read_text() == want:
             return dest
-        kw = {k: (Path(v) if k in SYNTH_PATH_KEYS and v else v) for k, v in synth.items()}
+        kw: dict[str, Any] = {
+            k: (Path(v) if k in SYNTH_PATH_KEYS and v else v) for k, v in synth.items()
+        }
         try:
             spec = SynthSpec(**kw)
         except TypeError as e:
