@@ -147,7 +147,7 @@ def run_bench(plan: BenchPlan, out_dir: Path | str, opts: BenchOptions) -> list[
     """Run (or resume) the bench; the records of every planned run, in plan order."""
     if opts.executor not in EXECUTORS:
         raise ConfigError(f"--executor must be one of {', '.join(EXECUTORS)}")
-    out = Path(out_dir)
+    out = Path(out_dir).absolute()  # the same path for Ray workers, whatever their folder
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder (the output folder of bench)")
     try:
