@@ -26,7 +26,6 @@ import argparse
 import json
 import multiprocessing
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -125,7 +124,10 @@ def run_one(
     env: dict[str, str] | None = None,
 ) -> dict[str, object]:
     """`eurocslam run` in a subprocess (`env`: its environment, e.g. a PYTHONPATH with other
-    code); wall time, CPU (with its reaped extraction workers), summary, peak RSS, ATE."""
+    code); wall time, CPU (with its reaped extraction workers), summary, peak RSS, ATE. The
+    subprocess runner is the one `eurocslam bench` uses."""
+    from eurocslam.eval.bench.process import last_line, run_process
+
     cmd = [str(EXE), "run", str(seq), "-o", str(out), "--no-progress", *extra_args]
     if config is not None:
         cmd += ["--config", str(config)]
@@ -133,23 +135,19 @@ def run_one(
         cmd.append("--no-imu")
     if not mcap:
         cmd.append("--no-mcap")
-    # its output to a file, not a pipe: read only after wait4, a long one would block the run
-    with tempfile.TemporaryFile("w+") as log:
-        t = time.perf_counter()
-        p = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env)
-        _, status, usage = os.wait4(p.pid, 0)
-        wall = time.perf_counter() - t
-        p.returncode = rc = os.waitstatus_to_exitcode(status)
-        log.seek(0)
-        output = log.read()
+    with tempfile.TemporaryDirectory(prefix="bench_run_log_") as tmp:
+        log = Path(tmp) / "run.log"
+        p = run_process(cmd, log, env=env, header=False)
+        error = last_line(log)
+    rc = p.returncode
     res: dict[str, object] = {
         "rc": rc,
-        "wall_s": wall,
-        "cpu_s": usage.ru_utime + usage.ru_stime,
-        "rss_mb": usage.ru_maxrss / 1024,
+        "wall_s": p.wall_s,
+        "cpu_s": p.cpu_s,
+        "rss_mb": p.max_rss_mb,
     }
     if rc != 0:
-        res["error"] = output.strip().splitlines()[-1:] or ["?"]
+        res["error"] = [error or "?"]
         return res
     summary = json.loads((out / "summary.json").read_text())
     res["summary"] = summary

@@ -173,15 +173,15 @@ def test_bench_keeps_finished_runs_on_ctrl_c(
 ) -> None:
     import json
 
-    import eurocslam.eval.bench as bench
+    import eurocslam.eval.bench.local as local
+    from eurocslam.eval.bench import RunRecord
 
-    def fake_run(rec, seq, cmd, cfg, timeout_s):
-        if rec.sequence == "second":
+    def fake_run(task, seq, out_dir, worker, cancel):
+        if task.sequence == "second":
             raise KeyboardInterrupt
-        rec.returncode, rec.error = 1, "exit 1 (log: run.log)"
-        return rec
+        return RunRecord(task.sequence, task.index, out_dir, error="exit 1 (log: run.log)")
 
-    monkeypatch.setattr(bench, "_one_run", fake_run)
+    monkeypatch.setattr(local, "execute", fake_run)
     for name in ("first", "second"):
         gt = tmp_path / name / "mav0" / "state_groundtruth_estimate0"
         gt.mkdir(parents=True)

@@ -1,51 +1,27 @@
-"""`eurocslam bench` with an injected fake run command (fast), and for real on a tiny synthetic
-sequence (slow)."""
+"""`eurocslam bench` with an injected fake run command (fast): tables, sweeps over
+configurations, resume, Ctrl-C; and for real on a tiny synthetic sequence (slow)."""
 
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
+from bench_helpers import StderrLines, calls, fake_run_cmd, gt_sequence
 from eurocslam.cli import main
 from eurocslam.errors import ConfigError
 from eurocslam.eval.bench import load_plan, published_key
-from eurocslam.eval.synthetic import smooth_trajectory
-from eurocslam.io.trajectory_io import write_euroc_csv
-
-FAKE_RUN = """
-import sys, pathlib
-import numpy as np
-from eurocslam.eval.synthetic import perturb, random_similarity
-from eurocslam.io.trajectory_io import read_trajectory, write_tum
-seq, out = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
-if "broken" in seq.name:
-    print("fake run: simulated crash", file=sys.stderr)
-    sys.exit(3)
-gt = read_trajectory(seq / "mav0/state_groundtruth_estimate0/data.csv")
-noise = 0.05 if "--no-imu" in sys.argv else 0.01
-seed = int(out.name.split("_")[-1]) + 1
-write_tum(out / "trajectory_final.tum",
-          perturb(gt, random_similarity(seed), step=10, noise_m=noise, seed=seed))
-write_tum(out / "trajectory_online.tum",
-          perturb(gt, random_similarity(seed), step=10, noise_m=2 * noise, seed=seed + 7))
-"""
-
-
-def _sequence(root: Path, name: str, seed: int) -> Path:
-    seq = root / name
-    gt = smooth_trajectory(1500, 200.0, seed=seed)
-    write_euroc_csv(seq / "mav0/state_groundtruth_estimate0/data.csv", gt)
-    return seq
 
 
 @pytest.fixture
 def fake(tmp_path: Path) -> str:
-    script = tmp_path / "fake_run.py"
-    script.write_text(FAKE_RUN)
-    return f"{sys.executable} {script} {{seq}} {{out}} {{no_imu}}"
+    return fake_run_cmd(tmp_path)
 
 
 def test_published_keys() -> None:
@@ -56,8 +32,8 @@ def test_published_keys() -> None:
 
 
 def test_bench_with_fake_run_command(tmp_path: Path, fake: str, capsys) -> None:
-    a = _sequence(tmp_path, "MH_01_easy", 1)
-    b = _sequence(tmp_path, "seq_b", 2)
+    a = gt_sequence(tmp_path, "MH_01_easy", 1)
+    b = gt_sequence(tmp_path, "seq_b", 2)
     out = tmp_path / "out"
     rc = main(
         ["bench", str(a), str(b), "-o", str(out), "--runs", "3", "--jobs", "3", "--run-cmd", fake]
@@ -74,14 +50,16 @@ def test_bench_with_fake_run_command(tmp_path: Path, fake: str, capsys) -> None:
     assert len(ates) == 3
     assert rows["seq_b"]["ate_final_m"] == pytest.approx(sorted(ates)[1])  # median of 3
     assert rows["seq_b"]["ate_online_m"] > rows["seq_b"]["ate_final_m"]
-    assert (out / "runs/seq_b/run_2/run.log").exists()
-    assert (out / "runs/seq_b/run_2/eval.md").read_text().startswith("## Trajectory evaluation")
+    run2 = out / "runs/default/seq_b/run_2"
+    assert (run2 / "run.log").exists()
+    assert (run2 / "eval.md").read_text().startswith("## Trajectory evaluation")
     assert (out / "bench.md").read_text().startswith("## Benchmark")
+    assert all(r["worker"]["executor"] == "local" for r in data["runs"])
 
 
 def test_bench_yaml_no_imu_and_failed_runs(tmp_path: Path, fake: str, capsys) -> None:
-    _sequence(tmp_path, "V1_01_easy", 3)
-    _sequence(tmp_path, "broken_seq", 4)
+    gt_sequence(tmp_path, "V1_01_easy", 3)
+    gt_sequence(tmp_path, "broken_seq", 4)
     plan = tmp_path / "plan.yaml"
     plan.write_text("runs: 2\nsequences:\n  - V1_01_easy\n  - {name: broken, path: broken_seq}\n")
     out = tmp_path / "out"
@@ -109,8 +87,145 @@ def test_bench_plan_errors(tmp_path: Path) -> None:
     p.write_text("sequences: [a]\nruns: 0\n")
     with pytest.raises(ConfigError, match="runs"):
         load_plan(p)
-    p.write_text("sequences:\n  - {name: s, synth: {duration_s: 2}}\n")
-    assert load_plan(p).sequences[0].synth == {"duration_s": 2}
+    p.write_text("sequences:\n  - {name: s, synth: {duration_s: 2, trajectory: gt.csv}}\n")
+    spec = load_plan(p).sequences[0].synth
+    assert spec == {"duration_s": 2, "trajectory": str((tmp_path / "gt.csv").resolve())}
+
+
+def _sweep_plan(tmp_path: Path) -> Path:
+    gt_sequence(tmp_path, "MH_01_easy", 1)
+    gt_sequence(tmp_path, "seq_b", 2)
+    (tmp_path / "n500.yaml").write_text("frontend:\n  n_features: 500\n")
+    plan = tmp_path / "plan.yaml"
+    plan.write_text(
+        "configs:\n"
+        "  base: ~\n"
+        "  n2000: {frontend: {n_features: 2000}}\n"
+        "  n500: n500.yaml\n"
+        "sequences: [MH_01_easy, seq_b]\n"
+    )
+    return plan
+
+
+def test_sweep_of_configurations(tmp_path: Path, fake: str, capsys) -> None:
+    plan = _sweep_plan(tmp_path)
+    (tmp_path / "cli.yaml").write_text("frontend: {n_features: 1000}\nbackend: {lag_s: 2.0}\n")
+    out = tmp_path / "out"
+    argv = ["bench", str(plan), "-o", str(out), "--runs", "2", "--run-cmd", fake]
+    assert main([*argv, "--config", f"cli={tmp_path / 'cli.yaml'}"]) == 0
+    md = capsys.readouterr().out
+    # a column group per configuration, in the order given (YAML first, then --config)
+    head = next(ln for ln in md.splitlines() if ln.startswith("| sequence"))
+    groups = [c.split(":")[0].strip() for c in head.split("|")[2:] if ":" in c]
+    assert list(dict.fromkeys(groups)) == ["base", "n2000", "n500", "cli"]
+    for g in ("ATE final", "ATE online", "coverage", "resets", "RTF", "CPU/s"):
+        assert f"| n500: {g} |" in head
+    data = json.loads((out / "bench.json").read_text())
+    assert len(data["runs"]) == 2 * 4 * 2  # sequences x configurations x runs, every run kept
+    assert set(data["configs"]) == {"base", "n2000", "n500", "cli"}
+    rows = {(r["sequence"], r["config"]): r for r in data["table"]}
+    # the fake's noise scales with 1000 / n_features: each run got its own configuration
+    ate = {c: rows[("seq_b", c)]["ate_final_m"] for c in ("base", "n2000", "n500", "cli")}
+    assert ate["n500"] > 1.5 * ate["base"] and ate["base"] > 1.5 * ate["n2000"]
+    assert ate["cli"] == pytest.approx(ate["base"])
+    given = (out / "runs/n2000/seq_b/run_1/bench_config.yaml").read_text()
+    assert "n_features: 2000" in given
+    assert not (out / "runs/base/seq_b/run_1/bench_config.yaml").exists()  # no --config
+    # base runs get no --config at all: today's command line
+    assert sum("--config" not in c for c in calls(tmp_path)) == 2 * 2
+
+
+def test_sweep_config_errors(tmp_path: Path, fake: str, capsys) -> None:
+    plan = _sweep_plan(tmp_path)
+    text = plan.read_text()
+    plan.write_text(text.replace("n_features: 2000", "n_feature: 2000"))
+    assert main(["bench", str(plan), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert str(plan) in err and "configs.n2000" in err and "n_feature" in err
+    assert len(err.splitlines()) == 1
+    plan.write_text(text.replace("lag", "x").replace("n2000: {frontend", "n2000: {backend"))
+    assert main(["bench", str(plan), "-o", str(tmp_path / "o")]) == 2
+    assert "backend.n_features" in capsys.readouterr().err
+    plan.write_text(text)
+    argv = ["bench", str(plan), "-o", str(tmp_path / "o"), "--run-cmd", fake]
+    assert main([*argv, "--config", f"base={tmp_path / 'n500.yaml'}"]) == 2
+    assert "'base'] given twice" in capsys.readouterr().err
+    assert main([*argv, "--config", "x=/no/such.yaml"]) == 2
+    assert "config file /no/such.yaml not found" in capsys.readouterr().err
+    assert main([*argv, "--config", f"a/b={tmp_path / 'n500.yaml'}"]) == 2
+    assert "configuration name 'a/b'" in capsys.readouterr().err
+    assert main([*argv, "--address", "h:1"]) == 2
+    assert "--address is an option of --executor ray" in capsys.readouterr().err
+    assert main([*argv, "--executor", "ray", "--jobs", "2"]) == 2
+    assert "--jobs is an option of --executor local" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "runs").exists()  # nothing ran
+
+
+def test_resume_keeps_finished_runs(tmp_path: Path, fake: str, capsys) -> None:
+    plan = _sweep_plan(tmp_path)
+    gt_sequence(tmp_path, "broken_seq", 5)
+    plan.write_text(plan.read_text().replace("seq_b]", "seq_b, broken_seq]"))
+    out = tmp_path / "out"
+    argv = ["bench", str(plan), "-o", str(out), "--run-cmd", fake]
+    assert main(argv) == 1  # broken_seq fails
+    first = json.loads((out / "bench.json").read_text())
+    assert len(calls(tmp_path)) == 9
+    # again: the finished runs are kept, the failed ones run again
+    assert main(argv) == 1
+    assert "resuming: 6 of 9 runs" in capsys.readouterr().err
+    assert len(calls(tmp_path)) == 9 + 3
+    again = json.loads((out / "bench.json").read_text())
+    assert [r["final"] for r in again["runs"]] == [r["final"] for r in first["runs"]]
+    assert sum(r["resumed"] for r in again["runs"]) == 6
+    # a configuration that changed runs again; the others are kept
+    plan.write_text(plan.read_text().replace("n_features: 2000", "n_features: 3000"))
+    assert main(argv) == 1
+    assert "made with other settings" in capsys.readouterr().err
+    new = calls(tmp_path)[12:]
+    assert len(new) == 3 + 2  # n2000's three runs, base's and n500's broken_seq runs
+    assert sum("broken_seq" in c for c in new) == 3
+    # --force runs everything
+    assert main([*argv, "--force"]) == 1
+    assert len(calls(tmp_path)) == 12 + 5 + 9
+
+
+def test_ctrl_c_stops_running_runs_and_keeps_finished(tmp_path: Path, fake: str) -> None:
+    """A real SIGINT to the bench alone (as when its runs are not in the terminal's process
+    group): the running run is stopped, the bench writes what finished and exits 130."""
+    gt_sequence(tmp_path, "fast", 1)
+    gt_sequence(tmp_path, "slow", 2)
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "eurocslam.cli", "bench", str(tmp_path / "fast")]
+    cmd += [str(tmp_path / "slow"), "-o", str(out), "--jobs", "2", "--run-cmd", fake]
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    err = StderrLines(p)
+    err.wait_for("fast run 0: ATE", timeout=60)
+    slow_pid = out / "runs/default/slow/run_0/fake_pid"
+    t_end = time.monotonic() + 30
+    while not slow_pid.exists():
+        assert time.monotonic() < t_end
+        time.sleep(0.05)
+    p.send_signal(signal.SIGINT)
+    p.wait(timeout=30)
+    assert p.returncode == 130, err.text()
+    assert "interrupted after 1 of 2 runs" in err.text()
+    data = json.loads((out / "bench.json").read_text())
+    assert [r["sequence"] for r in data["runs"]] == ["fast"]
+    pid = int(slow_pid.read_text())
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)  # the slow run was stopped (and reaped), not left running
+    assert (out / "runs/default/slow/run_0/fake_interrupted").exists()  # by a SIGINT
+
+
+def test_ray_executor_without_ray_says_how_to_install(
+    tmp_path: Path, fake: str, capsys, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as if not installed
+    seq = gt_sequence(tmp_path, "a", 1)
+    rc = main(["bench", str(seq), "-o", str(tmp_path / "o"), "--executor", "ray"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "pip install 'eurocslam[ray]'" in err and "pip install -e '.[ray]'" in err
 
 
 @pytest.mark.slow
@@ -125,4 +240,5 @@ def test_bench_real_run_on_tiny_synthetic_sequence(tmp_path: Path, capsys) -> No
     assert rc == 0, md
     assert run["final"] is not None and run["final"]["matched"] > 20
     assert run["final"]["ate_trans_rmse_m"] < 0.5
+    assert run["summary"]["frames"] > 0 and run["summary"]["realtime_factor"] > 0
     assert "| tiny | 1/1 |" in md
