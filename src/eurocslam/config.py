@@ -38,7 +38,7 @@ class ImuConfig:
     accel_noise_scale: float = 1.0
     # multipliers on the sensor.yaml bias random walks: the real V1_01 IMU's biases wander
     # faster than its datasheet random walk; 3 had the lowest total ATE of 1, 3 and 10 over all 11
-    # (measured before map reuse; README, "The IMU's bias random walk")
+    # (measured before map reuse; benchmarks/RESULTS.md, "The IMU's bias random walk")
     gyro_bias_walk_scale: float = 3.0
     accel_bias_walk_scale: float = 3.0
     integration_sigma: float = 1e-4  # continuous-time position integration noise

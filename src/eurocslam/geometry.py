@@ -8,6 +8,7 @@ ROS and TUM are x-first (`xyzw`).
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,7 +32,7 @@ def normalize_quat(q: F64) -> F64:
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if np.any(n < 1e-12):
         raise ValueError("zero-norm quaternion")
-    return q / n
+    return cast(F64, q / n)
 
 
 def quat_wxyz_to_rot(q: F64) -> F64:
@@ -98,7 +99,7 @@ def rot_to_quat_wxyz(r: F64) -> F64:
     q = cand[np.arange(m.shape[0]), np.argmax(key, axis=1)]
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     q[q[:, 0] < 0] *= -1
-    return q.reshape(*shape, 4)
+    return cast(F64, q.reshape(*shape, 4))
 
 
 def make_T(r: F64, t: F64) -> F64:
@@ -124,7 +125,7 @@ def inv_T(T: F64) -> F64:
 def transform_points(T: F64, p: F64) -> F64:
     """Apply T (4x4) to points (N, 3)."""
     p = np.asarray(p, dtype=np.float64)
-    return p @ T[:3, :3].T + T[:3, 3]
+    return cast(F64, p @ T[:3, :3].T + T[:3, 3])
 
 
 def skew(v: F64) -> F64:
@@ -139,7 +140,7 @@ def so3_exp(w: F64) -> F64:
     if th < 1e-12:
         return np.eye(3) + skew(w)
     k = skew(w / th)
-    return np.eye(3) + np.sin(th) * k + (1 - np.cos(th)) * (k @ k)
+    return cast(F64, np.eye(3) + np.sin(th) * k + (1 - np.cos(th)) * (k @ k))
 
 
 def so3_log(r: F64) -> F64:
@@ -154,9 +155,9 @@ def so3_log(r: F64) -> F64:
         b = (r + np.eye(3)) / 2.0
         i = int(np.argmax(np.diag(b)))
         axis = b[:, i] / np.sqrt(max(b[i, i], 1e-12))
-        return axis / np.linalg.norm(axis) * th
+        return cast(F64, axis / np.linalg.norm(axis) * th)
     v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    return v * th / (2.0 * np.sin(th))
+    return cast(F64, v * th / (2.0 * np.sin(th)))
 
 
 def rotation_angle(r: F64) -> float:

@@ -21,9 +21,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from eurocslam.errors import EvalError
+from eurocslam.timebase import NS_PER_S, UNIT_MIX_ORDERS, magnitude, unit_hint
 
 I64 = NDArray[np.int64]
-NS_PER_S = 1_000_000_000
 
 
 @dataclass(frozen=True)
@@ -64,19 +64,18 @@ def _span(t: I64) -> str:
 
 
 def check_time_bases(t_ref: I64, t_est: I64, ref_name: str, est_name: str) -> None:
-    """Fail when the two time bases differ by about 1e9 (seconds vs nanoseconds mix-up)."""
-    a = float(np.median(np.abs(t_ref))) if len(t_ref) else 0.0
-    b = float(np.median(np.abs(t_est))) if len(t_est) else 0.0
-    if a <= 0 or b <= 0:
+    """Fail when the two time bases differ by orders of magnitude (seconds read as nanoseconds
+    or the like: `timebase.UNIT_MIX_ORDERS`)."""
+    a, b = magnitude(t_ref), magnitude(t_est)
+    if a <= 0 or b <= 0 or abs(a - b) <= UNIT_MIX_ORDERS:
         return
-    ratio = max(a, b) / min(a, b)
-    if 1e7 < ratio < 1e11:
-        small, big = (ref_name, est_name) if a < b else (est_name, ref_name)
-        raise EvalError(
-            f"time bases differ by a factor ~{ratio:.2g}: {small} looks like it was read in "
-            f"seconds and {big} in nanoseconds (or vice versa). TUM time is seconds, EuRoC CSV "
-            "time is nanoseconds; pass --time-unit / --gt-time-unit to override"
-        )
+    ratio = 10 ** abs(a - b)
+    small, big = (ref_name, est_name) if a < b else (est_name, ref_name)
+    raise EvalError(
+        f"time bases differ by a factor ~{ratio:.2g} ({unit_hint(ratio)}): {small} looks like it "
+        f"was read in a larger unit than {big}. TUM time is seconds, EuRoC CSV time is "
+        "nanoseconds; pass --time-unit / --gt-time-unit to override"
+    )
 
 
 def associate(

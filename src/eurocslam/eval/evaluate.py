@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from eurocslam.errors import EvalError
 from eurocslam.eval.align import Alignment, align
-from eurocslam.eval.associate import NS_PER_S, Association, associate
+from eurocslam.eval.associate import Association, associate
 from eurocslam.eval.metrics import (
     RpeLength,
     Stats,
@@ -32,6 +32,7 @@ from eurocslam.eval.metrics import (
     rpe_length,
 )
 from eurocslam.geometry import F64, make_T
+from eurocslam.timebase import NS_PER_S
 from eurocslam.trajectory import Trajectory
 
 I64 = NDArray[np.int64]
@@ -210,7 +211,7 @@ def _eval_segment(
     )
 
 
-def _with_lengths(seg: SegmentEval, lengths: list[tuple[float | None, float]], tol: float):
+def _with_lengths(seg: SegmentEval, lengths: list[tuple[float | None, float]], tol: float) -> None:
     d = cumulative_distance(seg.p_ref)
     seg.lengths.extend(
         rpe_length(seg.p_ref, seg.R_ref, seg.p_est, seg.R_est, L, f, tol, d) for f, L in lengths

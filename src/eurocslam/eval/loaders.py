@@ -18,6 +18,7 @@ Stamps come from `header.stamp` (not the MCAP log time).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -110,7 +111,7 @@ def _tf_row(tf: Any) -> list[float]:
     return [p.x, p.y, p.z, q.w, q.x, q.y, q.z]
 
 
-def _stream_records(path: Path):
+def _stream_records(path: Path) -> Iterator[Any]:
     """Records of an MCAP read front to back; stops quietly where a truncated file ends."""
     from mcap.stream_reader import StreamReader
 
@@ -161,7 +162,7 @@ def mcap_topics(path: Path) -> dict[str, str]:
     return _scan(path)[0]
 
 
-def _decoded(path: Path, topic: str, indexed: bool):
+def _decoded(path: Path, topic: str, indexed: bool) -> Iterator[Any]:
     """Decoded ROS 2 messages of one topic, in file order."""
     from mcap_ros2.decoder import DecoderFactory
 

@@ -15,6 +15,7 @@ Definitions (identical to evo 1.38 where evo has the metric):
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -67,7 +68,7 @@ def rotation_angles_deg(R: F64) -> F64:
         [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]],
         axis=-1,
     )
-    return np.degrees(np.arctan2(0.5 * np.linalg.norm(v, axis=-1), 0.5 * (tr - 1.0)))
+    return cast(F64, np.degrees(np.arctan2(0.5 * np.linalg.norm(v, axis=-1), 0.5 * (tr - 1.0))))
 
 
 def ate_errors(p_ref: F64, R_ref: F64, p_est: F64, R_est: F64) -> tuple[F64, F64]:

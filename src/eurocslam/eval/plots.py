@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from eurocslam.errors import OutputError
 from eurocslam.eval.evaluate import EvalResult
@@ -19,7 +20,7 @@ GT_COLOR = "0.35"
 SEG_COLORS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown"]
 
 
-def _plt():
+def _plt() -> Any:
     import matplotlib
 
     matplotlib.use("Agg", force=True)
@@ -32,7 +33,7 @@ def _t0(r: EvalResult) -> int:
     return int(min(s.t_ns[0] for s in r.segments))
 
 
-def _save(fig, path: Path) -> Path:
+def _save(fig: Any, path: Path) -> Path:
     try:
         fig.savefig(path, dpi=110, bbox_inches="tight")
     except OSError as e:

@@ -14,7 +14,7 @@ from eurocslam.eval.metrics import Stats
 SCHEMA = "eurocslam.eval/1"
 
 
-def to_json_dict(results: list[EvalResult], extra: dict[str, Any] | None = None) -> dict:
+def to_json_dict(results: list[EvalResult], extra: dict[str, Any] | None = None) -> dict[str, Any]:
     d: dict[str, Any] = {"schema": SCHEMA, "results": [r.to_dict() for r in results]}
     if extra:
         d.update(extra)
@@ -32,7 +32,7 @@ def _clean(o: Any) -> Any:
     return o
 
 
-def write_json(path: Path | str, data: dict) -> None:
+def write_json(path: Path | str, data: dict[str, Any]) -> None:
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -50,7 +50,7 @@ def smooth_trajectory(
             f = rng.uniform(0.02, 0.15)
             p[:, k] += amp / 3 * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi))
         p[:, k] += rng.uniform(-0.02, 0.02) * t  # slow net motion
-    v = np.gradient(p, t, axis=0) if n > 1 else np.zeros((n, 3))
+    v = np.asarray(np.gradient(p, t, axis=0)) if n > 1 else np.zeros((n, 3))
     yaw = np.unwrap(np.arctan2(v[:, 1], v[:, 0]))
     roll = 0.1 * np.sin(2 * np.pi * 0.3 * t + rng.uniform(0, 6))
     pitch = 0.1 * np.sin(2 * np.pi * 0.2 * t + rng.uniform(0, 6))

@@ -276,8 +276,8 @@ def search_by_projection(
     k = min(k, len(feats))
     radius = radius_px * scale[np.clip(lm_octave[lm_rows], 0, scale.size - 1)]
     d_px, nn = tree.query(proj.uv[lm_rows], k=k, distance_upper_bound=float(radius.max()))
-    d_px = d_px.reshape(lm_rows.size, k)
-    nn = nn.reshape(lm_rows.size, k)
+    d_px = np.asarray(d_px).reshape(lm_rows.size, k)
+    nn = np.asarray(nn).reshape(lm_rows.size, k)
     valid = np.isfinite(d_px) & (nn < len(feats))
     nn = np.where(valid, nn, 0)
     valid &= d_px <= radius[:, None]

@@ -17,7 +17,7 @@ smoother publishing older poses) should write through `io.sink.ReorderBuffer` in
 `encode_frame` / `encode_files` build a frame's image messages without writing them (thread-safe,
 for a decode/encode thread pool) and `write_frame` accepts their `EncodedFrame` too.
 
-Topics and frames (also in README "MCAP topics and frames"):
+Topics and frames (also in README "MCAP topics"):
 
 | topic | type | frame_id |
 |---|---|---|

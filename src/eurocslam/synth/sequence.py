@@ -36,7 +36,7 @@ from eurocslam.synth.world import Marker, World, build_world
 GENERATOR_REVISION = 5
 DEFAULT_DURATION_S = 30.0
 TINY_DURATION_S = 2.0
-# sensor model constants (documented in the README)
+# sensor model constants (documented in docs/synthetic.md)
 READ_NOISE_DN = 1.5  # read noise sigma [DN]
 SHOT_NOISE_GAIN = 0.05  # shot-noise variance per DN of signal
 EXPOSURE_SPREAD = 0.15  # log-gain amplitude of the slow exposure changes

@@ -73,7 +73,7 @@ def _node_identity() -> dict[str, Any]:
     ctx = ray.get_runtime_context()
     who = worker_identity("ray")
     who["node_id"] = ctx.get_node_id()
-    who["node_ip"] = ray.util.get_node_ip_address()
+    who["node_ip"] = ray.util.get_node_ip_address()  # type: ignore[no-untyped-call]
     who["worker_id"] = ctx.get_worker_id()
     return who
 
