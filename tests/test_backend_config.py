@@ -90,9 +90,10 @@ def test_mode_is_resolved_against_the_sequence() -> None:
     from eurocslam.config import STEREO_INERTIAL, VISUAL_ONLY, resolve_mode
 
     assert resolve_mode(RunConfig(), has_imu=True).mode == STEREO_INERTIAL
+    assert resolve_mode(RunConfig(), has_imu=False).mode == VISUAL_ONLY  # a stereo-only rig
     vo = RunConfig(mode=VISUAL_ONLY)
     assert resolve_mode(vo, has_imu=False) is vo
     with pytest.raises(ConfigError, match="seq: no IMU data"):
-        resolve_mode(RunConfig(), has_imu=False, where="seq")
+        resolve_mode(RunConfig(mode=STEREO_INERTIAL), has_imu=False, where="seq")
     with pytest.raises(ConfigError, match="not resolved"):
         _ = RunConfig().inertial

@@ -15,6 +15,7 @@ the sequence (`resolve_mode`), before a run starts: every stage then reads the c
 from __future__ import annotations
 
 import dataclasses
+import logging
 import typing
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -24,6 +25,8 @@ import yaml
 
 from eurocslam.errors import ConfigError
 from eurocslam.frontend.config import FrontendConfig
+
+logger = logging.getLogger(__name__)
 
 STEREO_INERTIAL = "stereo-inertial"
 VISUAL_ONLY = "visual-only"
@@ -259,12 +262,19 @@ def config_from_dict(data: Any, origin: str = "<config>") -> RunConfig:
 
 
 def resolve_mode(cfg: RunConfig, has_imu: bool, where: str = "the sequence") -> RunConfig:
-    """The config with a concrete mode: `auto` becomes stereo-inertial (visual-only has to be
-    asked for). Stereo-inertial without IMU data is an error naming `where`."""
-    mode = STEREO_INERTIAL if cfg.mode == "auto" else cfg.mode
-    if mode == STEREO_INERTIAL and not has_imu:
-        raise ConfigError(f"{where}: no IMU data; run with --no-imu for visual-only")
-    return cfg if mode == cfg.mode else dataclasses.replace(cfg, mode=mode)
+    """The config with a concrete mode: `auto` is stereo-inertial where the sequence has an
+    IMU, visual-only (with a note) where it has none. Stereo-inertial asked for without IMU data
+    is an error naming `where`."""
+    if cfg.mode == "auto":
+        mode = STEREO_INERTIAL if has_imu else VISUAL_ONLY
+        if not has_imu:
+            logger.info("note: %s has no IMU data: running visual-only", where)
+        return dataclasses.replace(cfg, mode=mode)
+    if cfg.mode == STEREO_INERTIAL and not has_imu:
+        raise ConfigError(
+            f"{where}: no IMU data for mode stereo-inertial (mode: auto runs it visual-only)"
+        )
+    return cfg
 
 
 def load_config(path: Path | str | None = None) -> RunConfig:

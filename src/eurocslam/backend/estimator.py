@@ -56,14 +56,21 @@ class KeyframeEstimator:
     instance per trajectory segment."""
 
     def __init__(
-        self, imu_calib: ImuCalib, stereo: RectifiedStereo, imu: ImuData, cfg: RunConfig
+        self, imu_calib: ImuCalib | None, stereo: RectifiedStereo, imu: ImuData, cfg: RunConfig
     ) -> None:
         self.cfg = cfg
         # the IMU's data and noise model; None: visual-only (no IMU factors, no prediction)
-        self._imu = ImuModel(imu, imu_calib, cfg.imu) if cfg.inertial else None
+        if cfg.inertial and imu_calib is None:
+            raise ValueError("stereo-inertial needs the IMU's calibration")
+        self._imu = ImuModel(imu, imu_calib, cfg.imu) if cfg.inertial and imu_calib else None
         self._stereo = StereoModel(stereo, cfg.backend)
-        self._rw_gyro = imu_calib.gyro_random_walk * cfg.imu.gyro_bias_walk_scale
-        self._rw_acc = imu_calib.accel_random_walk * cfg.imu.accel_bias_walk_scale
+        # bias random walk between keyframes without an IMU factor (visual-only: the biases are
+        # unused, kept determined by a prior; a nominal walk where the rig has no IMU)
+        rw_gyro, rw_acc = (
+            (imu_calib.gyro_random_walk, imu_calib.accel_random_walk) if imu_calib else (1e-4, 1e-3)
+        )
+        self._rw_gyro = rw_gyro * cfg.imu.gyro_bias_walk_scale
+        self._rw_acc = rw_acc * cfg.imu.accel_bias_walk_scale
         self._make_smoother()
         self._k = -1  # index of the latest keyframe
         self._t0_ns = 0

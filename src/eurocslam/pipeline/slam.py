@@ -239,6 +239,7 @@ class SlamPipeline:
             if sel[-1] is not self._window[-1]:
                 sel = [*sel, self._window[-1]]
             try:
+                assert self.source.rig.imu is not None  # stereo-inertial
                 params = make_params(self.source.rig.imu, self.cfg.imu)
                 init = dynamic_init(params, self.imu, [w[0] for w in sel], [w[1] for w in sel], g)
             except (ValueError, np.linalg.LinAlgError):
