@@ -97,7 +97,7 @@ def test_archived_landmarks_are_re_found_where_they_were(tiny_sequence: Path) ->
     gt = seq.groundtruth
     assert gt is not None
     T_gt = dict(zip(gt.t_ns.tolist(), gt.T_world_body(), strict=True))
-    fe = Frontend(seq.rig, FrontendConfig(landmark_max_unseen_frames=2))
+    fe = Frontend(seq.rig, FrontendConfig(landmark_max_unseen_s=0.1))
     g = fe.extractor.geometry
     first: dict[int, np.ndarray] = {}  # id -> first sighting, true world
     tracked_px, reused_px = [], []

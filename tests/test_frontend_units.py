@@ -202,7 +202,7 @@ def test_archived_landmarks_come_back_under_their_ids() -> None:
     rows = np.array([int(np.nonzero(a.ids[: a.n] == i)[0][0]) for i in (15, 11)])
     now_desc = np.full((2, 32), 7, np.uint8)
     xyz = np.array([[1.0, 2, 3], [4, 5, 6]])
-    back = m.revive(rows, xyz, now_desc, np.array([2, 3]), np.ones((2, 2)), frame=9)
+    back = m.revive(rows, xyz, now_desc, np.array([2, 3]), np.ones((2, 2)), t_ns=9)
     assert back.tolist() == [15, 11]
     assert m.ids.tolist() == [11, 13, 14, 15, 16]  # sorted again: index_of works
     assert len(a) == 0

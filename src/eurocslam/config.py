@@ -56,6 +56,10 @@ class InitConfig:
     static_accel_std_max: float = 0.15  # m/s^2
     static_accel_norm_tol: float = 0.4  # | |a| - g | below this while still
     dynamic_window_s: float = 1.5  # stereo VO span aligned with the IMU for a moving start
+    # visual-only: the world's first attitude (nothing measures gravity): camera_level (cam0
+    # level, looking along world x: z up if the camera is held level) or body (the first body
+    # frame)
+    visual_world: str = "camera_level"
     dynamic_min_keyframes: int = 5
     # priors at initialisation (stddev)
     prior_yaw_sigma: float = 0.01  # rad: the first yaw is the gauge (nothing observes it)
@@ -76,8 +80,9 @@ class BackendConfig:
     relinearize_skip: int = 1
     stereo_sigma_px: float = 1.0
     huber_k: float = 1.345  # Huber threshold in units of sigma
-    min_disparity_px: float = 1.0  # stereo observations below this are left out
-    max_depth_m: float = 40.0
+    # stereo observations with less disparity are left out (1 px: 48 m on EuRoC, 386 m on
+    # KITTI; a far point still constrains the rotation through its stereo error in pixels)
+    min_disparity_px: float = 1.0
     min_obs_without_imu: int = 10  # a keyframe without an IMU factor needs this many points
     vo_bridge_rot_sigma: float = 0.02  # visual-only: a keyframe with too few of them is
     vo_bridge_pos_sigma: float = 0.05  # tied to the last one by the frontend's motion (rad, m)
@@ -100,12 +105,15 @@ class BackendConfig:
 
 @dataclass(frozen=True)
 class HealthConfig:
-    max_speed: float = 8.0  # m/s
+    # m/s, faster than the platform can move: stereo-inertial, a smoothed velocity above it is
+    # a divergence; visual-only, a tracked pose this far (per second) from the last is wrong
+    max_speed: float = 50.0
     max_gyro_bias: float = 0.3  # rad/s
     max_accel_bias: float = 1.5  # m/s^2
     max_lost_s: float = 2.0  # IMU-only bridging longer than this resets
     max_lost_s_no_imu: float = 0.3  # no IMU and no tracking: reset sooner
-    max_step_m: float = 1.0  # a keyframe jump larger than this is not plausible at 20 Hz
+    # stereo-inertial: the tracked pose may be this far from the IMU's prediction
+    max_prediction_error_m: float = 1.0
     min_tracked: int = 15  # fewer tracked landmarks counts as lost for the backend
 
 
@@ -143,6 +151,7 @@ class RunConfig:
 _CHOICES = {
     "mode": MODES,
     "init.mode": ("auto", "static", "dynamic"),
+    "init.visual_world": ("camera_level", "body"),
     "backend.smoother": ("fixed_lag", "isam2"),
 }
 
@@ -222,7 +231,6 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
             "lag_s",
             "stereo_sigma_px",
             "huber_k",
-            "max_depth_m",
             "max_keyframe_interval_s",
             "relinearize_skip",
             "max_landmarks_per_keyframe",
@@ -230,7 +238,13 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
             "vo_bridge_rot_sigma",
             "vo_bridge_pos_sigma",
         ),
-        "health": ("max_speed", "max_gyro_bias", "max_accel_bias", "max_lost_s", "max_step_m"),
+        "health": (
+            "max_speed",
+            "max_gyro_bias",
+            "max_accel_bias",
+            "max_lost_s",
+            "max_prediction_error_m",
+        ),
     }
     for name in positive.get(prefix, ()):
         if getattr(obj, name) <= 0:

@@ -333,7 +333,6 @@ class KeyframeEstimator:
         disp = uv[:, 0] - uv[:, 1]
         ok = np.isfinite(uv).all(axis=1) & (disp >= b.min_disparity_px)
         depth = np.where(ok, st.fx * st.baseline / np.where(ok, disp, 1.0), np.inf)
-        ok &= depth <= b.max_depth_m
         idx = np.nonzero(ok)[0]
         cap = b.max_landmarks_per_keyframe if self._imu else b.max_landmarks_per_keyframe_no_imu
         final_cap = max(cap, b.final_max_landmarks_per_keyframe) if b.final_batch else cap

@@ -54,11 +54,22 @@ class Health:
             return Verdict(False, f"accel bias {ba:.2f} m/s^2 out of bounds")
         return OK
 
-    def step(self, T_prev: np.ndarray, T_new: np.ndarray) -> Verdict:
-        """A jump between consecutive poses larger than physically plausible."""
-        step = float(np.linalg.norm(T_new[:3, 3] - T_prev[:3, 3]))
-        if not np.isfinite(step) or step > self.cfg.max_step_m:
-            return Verdict(False, f"pose jumped {step:.2f} m between frames")
+    def motion(
+        self, T_pred: np.ndarray, T_last: np.ndarray, dt_s: float, T_new: np.ndarray
+    ) -> Verdict:
+        """Is `T_new` a plausible pose? Stereo-inertial: within `max_prediction_error_m` of the
+        IMU's prediction `T_pred`. Visual-only (no prediction to trust: the car may have moved a
+        metre since the last frame): within `max_speed` x `dt_s` of the last tracked pose
+        `T_last`."""
+        if self.inertial:
+            err = float(np.linalg.norm(T_new[:3, 3] - T_pred[:3, 3]))
+            if not np.isfinite(err) or err > self.cfg.max_prediction_error_m:
+                return Verdict(False, f"pose jumped {err:.2f} m from the IMU's prediction")
+            return OK
+        step = float(np.linalg.norm(T_new[:3, 3] - T_last[:3, 3]))
+        speed = step / max(dt_s, 1e-3)
+        if not np.isfinite(step) or speed > self.cfg.max_speed:
+            return Verdict(False, f"pose jumped {step:.2f} m in {dt_s:.2f} s ({speed:.0f} m/s)")
         return OK
 
     def lost(self, lost_s: float, imu_ok: bool) -> Verdict:

@@ -33,8 +33,11 @@ class FrontendConfig:
 
     # ---- stereo rectification and matching (stereo.py, matching.py) ----------------------
     rectify_alpha: float = 0.0  # cv2.stereoRectify alpha: 0 = only valid pixels
-    min_depth_m: float = 0.2  # disparity bounds derived from these depths
-    max_depth_m: float = 40.0
+    # the disparity window, from the rig: from `stereo_min_disparity_px` (the farthest points a
+    # stereo match can measure; 1 px: 48 m on EuRoC, 386 m on KITTI) up to the disparity of a
+    # point `stereo_min_depth_baselines` baselines away (fx / that: 218 px on EuRoC)
+    stereo_min_disparity_px: float = 1.0
+    stereo_min_depth_baselines: float = 2.0
     stereo_row_tolerance_px: float = 2.0  # |vL - vR| allowed, times the octave scale
     stereo_max_hamming: int = 80  # descriptor distance accepted for a stereo match
     stereo_ratio: float = 0.9  # best / second-best descriptor distance (distinct candidates)
@@ -42,7 +45,10 @@ class FrontendConfig:
     subpixel_search_px: int = 5  # +- search range of the SAD refinement
 
     # ---- temporal tracking (tracking.py) -------------------------------------------------
-    track_radius_px: float = 10.0  # projection search radius (times the octave scale)
+    # projection search radius, as an angle (the prediction's error is angular): x fx gives
+    # pixels (1.3 deg: 9.9 px on EuRoC's 436 px focal length, 16 px on KITTI's 719), times the
+    # keypoint's octave scale
+    track_radius_deg: float = 1.3
     track_max_hamming: int = 80
     track_ratio: float = 0.9
     min_tracked: int = 20  # fewer pose inliers than this: LOST
@@ -50,13 +56,18 @@ class FrontendConfig:
     pnp_iterations: int = 200
     pose_chi2_stereo: float = 7.815  # chi-square 95 % (3 dof) for stereo outliers, 1 px sigma
     pose_chi2_mono: float = 5.991  # 2 dof
-    max_velocity_m_s: float = 10.0  # sanity bounds on the constant-velocity model
+    # sanity bounds on the constant-velocity model (a car on a road: 10-40 m/s)
+    max_velocity_m_s: float = 50.0
     max_angular_velocity_rad_s: float = 10.0
+    # the predicted pose (the caller's or the constant-velocity model's) seeds the projection
+    # search; false: every frame is tracked from the last pose alone (a test that tracking does
+    # not need a motion prior: the descriptor path then finds the pose)
+    motion_prior: bool = True
 
     # ---- map management --------------------------------------------------------------------
     max_new_landmarks_per_keyframe: int = 400
     max_landmarks: int = 4000  # local map size cap (oldest culled first)
-    landmark_max_unseen_frames: int = 40  # culled when not matched for this many frames
+    landmark_max_unseen_s: float = 2.0  # culled when not matched for this long
     landmark_min_found_ratio: float = 0.25  # found / visible below this: culled
     landmark_min_visible_for_ratio: int = 8  # ... once predicted visible this many times
     # map reuse: landmarks culled for going unseen (found at least `archive_min_found` times)
@@ -65,7 +76,7 @@ class FrontendConfig:
     reuse_map: bool = True
     archive_min_found: int = 3
     archive_max_landmarks: int = 100_000  # beyond: the least found are dropped
-    reuse_radius_px: float = 6.0  # projection search radius (times the octave scale)
+    reuse_radius_deg: float = 0.8  # projection search radius (x fx, times the octave scale)
     reuse_max_hamming: int = 50  # stricter than tracking: a wrong match is a wrong loop
     reuse_ratio: float = 0.8
 
@@ -73,7 +84,9 @@ class FrontendConfig:
     kf_max_interval_s: float = 0.5
     kf_min_tracked_ratio: float = 0.75  # tracked / tracked in the reference keyframe
     kf_min_tracked: int = 120  # fewer tracked landmarks than this: new keyframe
-    kf_parallax_px: float = 25.0  # median pixel shift of tracked features since last keyframe
+    # median shift of tracked features since the last keyframe, as an angle (x fx: pixels;
+    # 3.3 deg: 25 px on EuRoC)
+    kf_parallax_deg: float = 3.3
 
     # ---- degraded input --------------------------------------------------------------------
     image_min_std: float = 3.0  # below: blank image
@@ -96,7 +109,10 @@ class FrontendConfig:
             ("orb_levels", 1 <= self.orb_levels <= 12),
             ("fast_threshold", 1 <= self.fast_threshold <= 255),
             ("min_fast_threshold", 1 <= self.min_fast_threshold <= self.fast_threshold),
-            ("min_depth_m", 0 < self.min_depth_m < self.max_depth_m),
+            ("stereo_min_disparity_px", self.stereo_min_disparity_px > 0),
+            ("stereo_min_depth_baselines", self.stereo_min_depth_baselines > 0),
+            ("track_radius_deg", 0 < self.track_radius_deg < 30),
+            ("reuse_radius_deg", 0 < self.reuse_radius_deg < 30),
             ("rectify_alpha", 0.0 <= self.rectify_alpha <= 1.0),
             ("stereo_ratio", 0 < self.stereo_ratio <= 1),
             ("track_ratio", 0 < self.track_ratio <= 1),

@@ -1,7 +1,7 @@
 """Stereo matching along rows of rectified images.
 
 For every left keypoint, candidates are the right keypoints on (nearly) the same row
-(|vL - vR| <= tolerance x octave scale), at a disparity allowed by the depth bounds, on a
+(|vL - vR| <= tolerance x octave scale), at a disparity the rig allows (`disparity_window`), on a
 neighbouring pyramid octave. A match needs a small descriptor distance, a ratio test against
 the best *distinct* other candidate, left-right consistency (the right keypoint's best left
 candidate is this one), and a successful sub-pixel refinement: zero-mean SSD block matching of a
@@ -37,6 +37,12 @@ class StereoMatches:
         return np.isfinite(self.uR)
 
 
+def disparity_window(config: FrontendConfig, geom: RectifiedStereo) -> tuple[float, float]:
+    """The disparities (px) a stereo match may have on this rig: from `stereo_min_disparity_px`
+    to that of a point `stereo_min_depth_baselines` baselines away (fx / that)."""
+    return config.stereo_min_disparity_px, geom.fx / config.stereo_min_depth_baselines
+
+
 def _first_per_group(group: NDArray[np.intp], key: NDArray[np.int32]) -> NDArray[np.intp]:
     """Indices (into the pair arrays) of the smallest `key` for each distinct `group`."""
     order = np.lexsort((key, group))
@@ -66,8 +72,7 @@ def candidate_pairs(
     starts = np.repeat(lo - (np.cumsum(counts) - counts), counts)
     rj = order[starts + np.arange(total)]
     d = left.uv[li, 0] - right.uv[rj, 0]
-    d_min = geom.fx * geom.baseline / config.max_depth_m
-    d_max = geom.fx * geom.baseline / config.min_depth_m
+    d_min, d_max = disparity_window(config, geom)
     keep = (d >= d_min) & (d <= d_max) & (np.abs(left.octave[li] - right.octave[rj]) <= 1)
     return li[keep], rj[keep]
 
@@ -202,8 +207,7 @@ def match_stereo(
         floor = 4.0 * (2 * config.subpixel_half_window + 1) ** 2
         good &= cost <= max(thr, floor)
     d = left.uv[cand, 0] - uR_ref
-    d_min = geom.fx * geom.baseline / config.max_depth_m
-    d_max = geom.fx * geom.baseline / config.min_depth_m
+    d_min, d_max = disparity_window(config, geom)
     with np.errstate(invalid="ignore"):
         good &= (d >= d_min) & (d <= d_max)
     cand, r_c, uR_ref, d = cand[good], r_c[good], uR_ref[good], d[good]

@@ -54,12 +54,17 @@ class StereoTracker:
         self._rectifier = rectifier
         self._T_body_rect0 = rectifier.geometry.T_body_rect0
         self.scale = pyramid_scales(self.config)
+        fx = rectifier.geometry.fx  # angles in the configuration -> pixels on this rig
+        self._track_radius_px = fx * np.radians(self.config.track_radius_deg)
+        self._reuse_radius_px = fx * np.radians(self.config.reuse_radius_deg)
+        self._kf_parallax_px = fx * np.radians(self.config.kf_parallax_deg)
+        self._max_unseen_ns = round(self.config.landmark_max_unseen_s * 1e9)
         self.map = LocalMap(first_landmark_id, self.config.archive_max_landmarks)
         self._T_init = None if T_world_body_init is None else np.asarray(T_world_body_init, float)
         self._motion = VelocityModel(
             self.config.max_velocity_m_s, self.config.max_angular_velocity_rad_s
         )
-        self.frame_index = -1
+        self._t_ns = 0  # the frame being tracked
         self._initialized = False
         self._lost_count = 0
         self._last_kf_t_ns: int | None = None
@@ -119,21 +124,33 @@ class StereoTracker:
         self.last_T_world_body = T_new.copy()
 
     # ---- tracking ---------------------------------------------------------------------------
-    def track(self, ff: FrameFeatures, T_world_body_pred: F64 | None = None) -> FrontendResult:
-        self.frame_index += 1
+    def track(
+        self,
+        ff: FrameFeatures,
+        T_world_body_pred: F64 | None = None,
+        keyframe_allowed: bool = True,
+    ) -> FrontendResult:
+        """Track one frame. `T_world_body_pred`: the caller's prediction (the IMU's), else the
+        constant-velocity model's; with `motion_prior: false`, neither: the last pose.
+        `keyframe_allowed`: the caller would take this frame as a keyframe (the backend's
+        minimum interval has passed); otherwise it is not made one (no new landmarks)."""
+        self._t_ns = ff.t_ns
         timings = dict(ff.timings_ms)
         t0 = time.perf_counter()
         if T_world_body_pred is None:
             pred = self._motion.predict(ff.t_ns)
         else:
             pred = rigid(np.asarray(T_world_body_pred, dtype=np.float64))
+        if not self.config.motion_prior and self._initialized:
+            # no prior: the last pose (a new map still starts where the caller puts it)
+            T_world_body_pred, pred = None, self.last_T_world_body
         if ff.problem is not None:
             return self._result(ff, TrackingState.NO_IMAGE, None, timings, t0)
         if not self._initialized:
             return self._initialize(ff, pred, timings, t0)
         if pred is None:  # initialised but never had a pose: cannot happen; be safe
             pred = self.last_T_world_body if self.last_T_world_body is not None else np.eye(4)
-        T_world_body, inlier_rows, inlier_kps = self._track_local_map(
+        T_world_body, inlier_rows, inlier_kps, path = self._track_local_map(
             ff, pred, T_world_body_pred is not None, timings
         )
         if T_world_body is None:
@@ -141,15 +158,15 @@ class StereoTracker:
             if self._lost_count >= self.config.reinit_after_lost_frames:
                 # re-create the map from stereo at the best available pose
                 return self._initialize(ff, pred, timings, t0, reinit=True)
-            return self._result(ff, TrackingState.LOST, None, timings, t0)
+            return self._result(ff, TrackingState.LOST, None, timings, t0, track_path="lost")
         self._lost_count = 0
         self._motion.update(ff.t_ns, T_world_body)
         self.last_T_world_body = T_world_body
         m = self.map
         m.n_found[inlier_rows] += 1
-        m.last_seen[inlier_rows] = self.frame_index
+        m.last_seen[inlier_rows] = ff.t_ns
         m.desc[inlier_rows] = ff.left.desc[inlier_kps]
-        is_kf = self._need_keyframe(ff, inlier_rows, inlier_kps)
+        is_kf = keyframe_allowed and self._need_keyframe(ff, inlier_rows, inlier_kps)
         ids = m.ids[inlier_rows]
         obs_kps = inlier_kps
         tracked = np.zeros(len(ff.left), dtype=bool)
@@ -180,6 +197,7 @@ class StereoTracker:
             n_tracked=n_tracked,
             obs_kps=obs_kps,
             n_reused=int(old_kps.size) if is_kf else 0,
+            track_path=path,
         )
 
     # ---- internals --------------------------------------------------------------------------
@@ -255,7 +273,7 @@ class StereoTracker:
             ff.left.desc[cand],
             ff.left.octave[cand],
             np.full((cand.size, 2), np.nan),
-            self.frame_index,
+            self._t_ns,
         )
         return ids, cand
 
@@ -303,11 +321,16 @@ class StereoTracker:
 
     def _track_local_map(
         self, ff: FrameFeatures, pred: F64, have_pred: bool, timings: dict[str, float]
-    ) -> tuple[F64 | None, NDArray[np.intp], NDArray[np.intp]]:
+    ) -> tuple[F64 | None, NDArray[np.intp], NDArray[np.intp], str]:
+        """The pose of this frame against the local map, its inlier rows and keypoints, and the
+        path that found it: `projection` (the map projected with the predicted pose, a window of
+        `track_radius_deg`), `projection_wide` (3x the window), `descriptor` (no prior: the
+        frame's descriptors matched against the whole local map, PnP RANSAC on the matches,
+        then the projection at that pose) or `lost`."""
         c, g, m = self.config, self.rectified, self.map
         empty = np.zeros(0, np.intp)
         if len(m) == 0 or len(ff.left) == 0:
-            return None, empty, empty
+            return None, empty, empty, "lost"
         tree = cKDTree(ff.left.uv)
         sigma_all = self.scale[np.clip(ff.left.octave, 0, self.scale.size - 1)]
         T_pred_rc = rect_T_from_body(pred, self._T_body_rect0)
@@ -316,37 +339,36 @@ class StereoTracker:
         m.n_visible[proj.in_view] += 1
         t0 = time.perf_counter()
         pnp_ms = 0.0
+        radius = self._track_radius_px
         # pass 1: at the prediction (wider window without an external prediction)
-        r1 = c.track_radius_px * (1.0 if have_pred else 1.5)
+        r1 = radius * (1.0 if have_pred else 1.5)
+        path = "projection"
         T_rc, rows, kps, n_match = self._match_and_optimize(ff, tree, T_pred_rc, r1, sigma_all)
         if rows.size < c.min_tracked:
+            path = "projection_wide"
             T_rc, rows, kps, n_match = self._match_and_optimize(
-                ff, tree, T_pred_rc, 3.0 * c.track_radius_px, sigma_all
+                ff, tree, T_pred_rc, 3.0 * radius, sigma_all
             )
         if rows.size < max(c.min_tracked, n_match // 2):
-            # verify / recover: descriptor matching against the whole local map + PnP RANSAC
+            # verify / recover without the prior: descriptor matching + PnP RANSAC
             tp = time.perf_counter()
             T_pnp = self._relocalize(ff, T_pred_rc)
             pnp_ms += (time.perf_counter() - tp) * 1e3
             if T_pnp is not None:
-                T2, rows2, kps2, _ = self._match_and_optimize(
-                    ff, tree, T_pnp, c.track_radius_px, sigma_all
-                )
+                T2, rows2, kps2, _ = self._match_and_optimize(ff, tree, T_pnp, radius, sigma_all)
                 if rows2.size > rows.size:
-                    T_rc, rows, kps = T2, rows2, kps2
+                    T_rc, rows, kps, path = T2, rows2, kps2, "descriptor"
         if rows.size < c.min_tracked:
             timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
             timings["pnp"] = pnp_ms
-            return None, empty, empty
+            return None, empty, empty, "lost"
         # pass 2: refined pose, tight window, every visible landmark
-        T2, rows2, kps2, _ = self._match_and_optimize(
-            ff, tree, T_rc, 0.5 * c.track_radius_px, sigma_all
-        )
+        T2, rows2, kps2, _ = self._match_and_optimize(ff, tree, T_rc, 0.5 * radius, sigma_all)
         if rows2.size >= rows.size * 0.8 and rows2.size >= c.min_tracked:
             T_rc, rows, kps = T2, rows2, kps2
         timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
         timings["pnp"] = pnp_ms
-        return body_T_from_rect(T_rc, self._T_body_rect0), rows, kps
+        return body_T_from_rect(T_rc, self._T_body_rect0), rows, kps, path
 
     def _relocalize(self, ff: FrameFeatures, T_guess_rc: F64) -> F64 | None:
         """Match frame descriptors to every local-map landmark (ratio test), PnP RANSAC."""
@@ -408,7 +430,7 @@ class StereoTracker:
             ff.stereo.uR[free],
             cKDTree(cand.uv),
             self.scale,
-            c.reuse_radius_px,
+            self._reuse_radius_px,
             c.reuse_max_hamming,
             c.reuse_ratio,
         )
@@ -416,7 +438,7 @@ class StereoTracker:
             return none
         kps = free[kps]
         xyz = self._triangulate_world(ff, kps, T_world_body)
-        ids = self.map.revive(rows, xyz, fl.desc[kps], fl.octave[kps], fl.uv[kps], self.frame_index)
+        ids = self.map.revive(rows, xyz, fl.desc[kps], fl.octave[kps], fl.uv[kps], self._t_ns)
         return ids, kps
 
     def _need_keyframe(
@@ -434,7 +456,7 @@ class StereoTracker:
         seen = np.all(np.isfinite(kf_uv), axis=1)
         if seen.sum() >= 10:
             shift = np.linalg.norm(ff.left.uv[kps[seen]] - kf_uv[seen], axis=1)
-            if float(np.median(shift)) > c.kf_parallax_px:
+            if float(np.median(shift)) > self._kf_parallax_px:
                 return True
         return False
 
@@ -442,7 +464,7 @@ class StereoTracker:
         c, m = self.config, self.map
         if len(m) == 0:
             return
-        keep = (self.frame_index - m.last_seen) <= c.landmark_max_unseen_frames
+        keep = (self._t_ns - m.last_seen) <= self._max_unseen_ns
         ratio_bad = (m.n_visible >= c.landmark_min_visible_for_ratio) & (
             m.n_found < c.landmark_min_found_ratio * m.n_visible
         )
@@ -475,6 +497,7 @@ class StereoTracker:
         n_tracked: int = 0,
         obs_kps: NDArray[np.intp] | None = None,
         n_reused: int = 0,
+        track_path: str = "",
     ) -> FrontendResult:
         t_draw = time.perf_counter()
         draw = self._rectifier.rect0_to_raw(ff.left.uv) if len(ff.left) else np.zeros((0, 2))
@@ -491,6 +514,7 @@ class StereoTracker:
             n_stereo=int(ff.stereo.valid.sum()),
             n_tracked=n_tracked,
             n_reused=n_reused,
+            track_path=track_path,
             draw_uv=draw,
             draw_tracked=tracked if tracked is not None else np.zeros(len(ff.left), dtype=bool),
             timings_ms=timings,

@@ -106,7 +106,7 @@ class LocalMap:
         self.octave: NDArray[np.int32] = np.zeros(0, np.int32)
         self.n_visible: I64 = np.zeros(0, np.int64)  # predicted inside the image
         self.n_found: I64 = np.zeros(0, np.int64)  # matched as a pose inlier
-        self.last_seen: I64 = np.zeros(0, np.int64)  # frame index of the last inlier match
+        self.last_seen: I64 = np.zeros(0, np.int64)  # t_ns of the last inlier match
         self.kf_uv: F64 = np.zeros((0, 2))  # pixel position at the last keyframe (NaN: unseen)
         self.archive = LandmarkArchive(archive_capacity)
 
@@ -114,7 +114,7 @@ class LocalMap:
         return int(self.ids.size)
 
     def add(
-        self, xyz: F64, desc: NDArray[np.uint8], octave: NDArray[np.int32], uv: F64, frame: int
+        self, xyz: F64, desc: NDArray[np.uint8], octave: NDArray[np.int32], uv: F64, t_ns: int
     ) -> I64:
         n = xyz.shape[0]
         ids = np.arange(self.next_id, self.next_id + n, dtype=np.int64)
@@ -127,7 +127,7 @@ class LocalMap:
                 "octave": octave.astype(np.int32),
                 "n_visible": np.ones(n, np.int64),
                 "n_found": np.ones(n, np.int64),
-                "last_seen": np.full(n, frame, np.int64),
+                "last_seen": np.full(n, t_ns, np.int64),
                 "kf_uv": uv,
             }
         )
@@ -156,7 +156,7 @@ class LocalMap:
         desc: NDArray[np.uint8],
         octave: NDArray[np.int32],
         uv: F64,
-        frame: int,
+        t_ns: int,
     ) -> I64:
         """Move archive rows back into the map under their ids, as seen now: position,
         descriptor, octave and pixel of the sighting that re-found them."""
@@ -167,7 +167,7 @@ class LocalMap:
             desc=desc,
             octave=octave.astype(np.int32),
             kf_uv=uv,
-            last_seen=np.full(n, frame, np.int64),
+            last_seen=np.full(n, t_ns, np.int64),
             n_visible=back["n_visible"] + 1,
             n_found=back["n_found"] + 1,
         )

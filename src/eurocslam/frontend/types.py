@@ -40,6 +40,9 @@ class FrontendResult:
     n_stereo: int  # of which stereo-matched
     n_tracked: int  # landmarks tracked (PnP inliers)
     n_reused: int = 0  # archived landmarks re-found at this keyframe (map reuse)
+    # how the pose was found: projection | projection_wide | descriptor | lost ("": not tracked
+    # against a map: the first frame, a new map, no image)
+    track_path: str = ""
     # 2D points in *raw* (unrectified) cam0 pixels for drawing: (M, 2), and whether tracked
     draw_uv: F64 = field(default_factory=lambda: np.zeros((0, 2)))
     draw_tracked: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))

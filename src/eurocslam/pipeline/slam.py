@@ -33,7 +33,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from eurocslam.backend.estimator import KeyframeEstimator
-from eurocslam.backend.health import Health
+from eurocslam.backend.health import Health, Verdict
 from eurocslam.backend.initializer import (
     InitialState,
     choose_mode,
@@ -62,8 +62,8 @@ from eurocslam.pipeline.records import (
 from eurocslam.pipeline.segments import FrameRecord, Segment, assemble
 from eurocslam.pipeline.summary import RunSummary, cpu_seconds
 
-# EuRoC mounting (body x up, body z forward): the visual-only world's initial attitude
-R_WORLD_BODY_MOUNT = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
+# an optical camera (x right, y down, z forward) held level, looking along world x (z up)
+R_WORLD_CAM_LEVEL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
 class SlamPipeline:
@@ -90,7 +90,8 @@ class SlamPipeline:
         self.segments: list[Segment] = []
         self._new_segment()
         self._last_pose: F64 | None = None
-        self._last_good_t: int | None = None
+        self._last_good_t: int | None = None  # the last tracked frame ...
+        self._last_good_T: F64 | None = None  # ... and its pose
         self._hint_T: F64 | None = None  # pose to restart from after a reset
         self._init_mode: str | None = None
         self._window: list[tuple[int, F64]] = []  # dynamic init: VO frames (t, T_world_body)
@@ -175,6 +176,9 @@ class SlamPipeline:
         out = self._step_init(ff) if self.state == PipelineState.INIT else self._step_tracking(ff)
         if out.frontend is not None:
             s.landmarks_reused += out.frontend.n_reused
+            if out.frontend.track_path:
+                p = out.frontend.track_path
+                s.track_paths[p] = s.track_paths.get(p, 0) + 1
             if "track_total" in out.frontend.timings_ms:
                 s.add_time("tracking", out.frontend.timings_ms["track_total"])
         s.state_frames[out.state.value] = s.state_frames.get(out.state.value, 0) + 1
@@ -214,7 +218,7 @@ class SlamPipeline:
                 T0 = (
                     self._hint_T
                     if self._hint_T is not None
-                    else make_T(R_WORLD_BODY_MOUNT, np.zeros(3))
+                    else make_T(self._visual_attitude(), np.zeros(3))
                 )
                 init = InitialState(t, T0, np.zeros(3), np.zeros(3), np.zeros(3), "visual")
             fr = self.tracker.track(ff, init.T_world_body)
@@ -256,7 +260,15 @@ class SlamPipeline:
             return gravity_aligned_rotation(np.mean(w.accel, axis=0))
         if self._hint_T is not None:
             return self._hint_T[:3, :3]
-        return R_WORLD_BODY_MOUNT
+        return self._visual_attitude()
+
+    def _visual_attitude(self) -> F64:
+        """The first attitude of a world nothing levels (`init.visual_world`): cam0 held level,
+        looking along world x, or the first body frame."""
+        if self.cfg.init.visual_world == "body":
+            return np.eye(3)
+        R_body_cam0 = self.source.rig.cam0.T_body_cam[:3, :3]
+        return R_WORLD_CAM_LEVEL @ R_body_cam0.T
 
     def _fallback_init(self) -> InitialState:
         """The window could not be aligned (too little motion): keep the levelled VO frame,
@@ -299,7 +311,7 @@ class SlamPipeline:
             seg.records.append(FrameRecord(t, T, 0))
         self.tracker.apply(MapCorrection(T))
         self.state = PipelineState.TRACKING
-        self._last_good_t = t
+        self._last_good_t, self._last_good_T = t, T
         self._hint_T = None
         return self._keyframe_out(t, upd, fr)
 
@@ -310,25 +322,26 @@ class SlamPipeline:
         t = ff.t_ns
         hc = self.cfg.health
         pred = self.est.predict(t)
+        since_kf = (t - nav.t_ns) * 1e-9
+        bc = self.cfg.backend
+        kf_ok = since_kf >= bc.min_keyframe_interval_s
         if self.cfg.inertial:
-            fr = self.tracker.track(ff, pred.T_world_body)
+            fr = self.tracker.track(ff, pred.T_world_body, kf_ok)
         else:
             # visual-only: constant velocity from the last two poses (the tracker's own model)
             pred = NavEstimate(t, self._constant_velocity(t), pred.v_world, pred.bg, pred.ba)
-            fr = self.tracker.track(ff, None)
+            fr = self.tracker.track(ff, None, kf_ok)
         tracked = fr.T_world_body is not None and (
             fr.state == TrackingState.INIT or fr.n_tracked >= hc.min_tracked
         )
         if tracked and fr.T_world_body is not None:
-            v = self.health.step(pred.T_world_body, fr.T_world_body)
+            v = self._plausible(t, pred.T_world_body, fr.T_world_body)
             if not v.ok:
                 tracked = False
                 self.tracker.apply(MapCorrection(pred.T_world_body))
         if tracked and fr.T_world_body is not None:
-            since_kf = (t - nav.t_ns) * 1e-9
-            bc = self.cfg.backend
             need_kf = (
-                (fr.is_keyframe and since_kf >= bc.min_keyframe_interval_s)
+                fr.is_keyframe
                 or fr.state == TrackingState.INIT
                 or self.state == PipelineState.LOST
                 or since_kf >= bc.max_keyframe_interval_s
@@ -338,7 +351,7 @@ class SlamPipeline:
             T = fr.T_world_body
             self.segment.records.append(FrameRecord(t, T, self._kf_index))
             self.state = PipelineState.TRACKING
-            self._last_good_t = t
+            self._last_good_t, self._last_good_T = t, T
             return self._out(t, PipelineState.TRACKING, T, fr, nav)
         # LOST: bridge with the prediction
         lost_s = (t - (self._last_good_t or t)) * 1e-9
@@ -365,7 +378,7 @@ class SlamPipeline:
         T = upd.nav.T_world_body
         verdict = self.health.state(upd.nav)
         if verdict.ok:
-            verdict = self.health.step(pred.T_world_body, T)
+            verdict = self._plausible(t, pred.T_world_body, T)
         if not verdict.ok:
             return self._fail(t, verdict.reason, pred.T_world_body, fr)
         b = self.cfg.backend
@@ -382,8 +395,14 @@ class SlamPipeline:
         seg.kf_T_chain[upd.index] = T
         seg.records.append(FrameRecord(t, T, upd.index))
         self.state = PipelineState.TRACKING
-        self._last_good_t = t
+        self._last_good_t, self._last_good_T = t, T
         return self._keyframe_out(t, upd, fr)
+
+    def _plausible(self, t: int, T_pred: F64, T_new: F64) -> Verdict:
+        """`Health.motion` of a tracked or smoothed pose at `t`."""
+        T_last = self._last_good_T if self._last_good_T is not None else T_pred
+        dt = (t - (self._last_good_t if self._last_good_t is not None else t)) * 1e-9
+        return self.health.motion(T_pred, T_last, dt, T_new)
 
     def _constant_velocity(self, t: int) -> F64:
         """Pose at `t` extrapolated from the last two online poses of this segment."""

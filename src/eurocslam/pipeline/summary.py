@@ -28,6 +28,9 @@ def _finite(x: float) -> float | None:
     return None if math.isnan(x) else round(x, 3)
 
 
+TRACK_PATHS = ("projection", "projection_wide", "descriptor", "lost")
+
+
 @dataclass
 class RunSummary:
     sequence: str = ""
@@ -42,6 +45,8 @@ class RunSummary:
     init_modes: list[str] = field(default_factory=list)
     imu_checks: list[ImuCheck] = field(default_factory=list)  # final batch, per segment
     state_frames: dict[str, int] = field(default_factory=dict)
+    # how the tracker found each frame's pose: projection | projection_wide | descriptor | lost
+    track_paths: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
     wall_s: float = 0.0
     cpu_s: float = 0.0  # CPU time of the process (every thread) and its workers
@@ -98,6 +103,7 @@ class RunSummary:
                 for c in self.imu_checks
             ],
             "state_frames": self.state_frames,
+            "track_paths": self.track_paths,
             "duration_s": round(self.duration_s, 3),
             "wall_s": round(self.wall_s, 3),
             "cpu_s": round(self.cpu_s, 3),
@@ -123,6 +129,13 @@ class RunSummary:
             f"{self.segments} segment(s), {len(self.resets)} reset(s)",
             f"init: {', '.join(self.init_modes) or 'none'}; frames per state: "
             + ", ".join(f"{k} {v}" for k, v in sorted(self.state_frames.items())),
+            "tracked by: "
+            + (
+                ", ".join(
+                    f"{k} {self.track_paths[k]}" for k in TRACK_PATHS if k in self.track_paths
+                )
+                or "-"
+            ),
             f"{self.duration_s:.1f} s of data in {self.wall_s:.1f} s wall "
             f"(real-time factor {self.realtime_factor:.2f}), {self.cpu_s:.1f} s CPU",
             f"peak memory {self.peak_rss_mb:.0f} MB"
