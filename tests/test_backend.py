@@ -118,6 +118,13 @@ def test_gap_detection() -> None:
     assert gap_in(gappy, _ns(0.9), _ns(1.7)) == pytest.approx(0.5, abs=0.01)
     pim = gtsam.PreintegratedCombinedMeasurements(make_params(RIG.imu))
     assert not integrate(pim, gappy, _ns(0.9), _ns(1.7)).ok(0.05)
+    # a frame-by-frame extension inside the dropout (50 ms spans between samples 0.5 s apart)
+    # is a dropout too, not a 50 ms gap
+    for a, b in ((0.95, 1.0), (1.1, 1.15), (1.45, 1.5)):
+        pim = gtsam.PreintegratedCombinedMeasurements(make_params(RIG.imu))
+        assert not integrate(pim, gappy, _ns(a), _ns(b)).ok(0.05), (a, b)
+    pim = gtsam.PreintegratedCombinedMeasurements(make_params(RIG.imu))
+    assert integrate(pim, gappy, _ns(1.6), _ns(1.65)).ok(0.05)
 
 
 def test_static_init_gravity_and_gyro_bias() -> None:

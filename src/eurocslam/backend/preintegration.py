@@ -102,7 +102,10 @@ def integrate(
     a_mid = acc + w[:, None] * (acc[nxt] - acc)
     for k in np.nonzero(dts > 0.0)[0].tolist():
         pim.integrateMeasurement(a_mid[k], g_mid[k], float(dts[k]))
-    gaps = dts[dts > 0.0]
+    # a gap is the spacing of the samples around an integrated interval, however little of it
+    # falls in this span: a span inside a dropout is integrated from samples seconds apart
+    spacing = np.append(np.diff(ts), 0) * 1e-9
+    gaps = spacing[dts > 0.0]
     if ts[0] > t0_ns:
         gaps = np.append(gaps, (ts[0] - t0_ns) * 1e-9)
     if ts[-1] < t1_ns:
