@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from eurocslam.config import RunConfig, resolve_mode
-from eurocslam.dataset.types import SequenceSource
+from eurocslam.dataset.types import SequenceSource, has_imu
 from eurocslam.errors import OutputError
 from eurocslam.io.ply import write_ply
 from eurocslam.io.sink import Sink
@@ -107,7 +107,7 @@ def run_slam(
     from eurocslam.timebase import resolve_time
 
     opt = options or RunOptions()
-    cfg = resolve_mode(cfg or RunConfig(), len(source.imu) > 0, source.name)
+    cfg = resolve_mode(cfg or RunConfig(), has_imu(source), source.name)
     out_dir = Path(out_dir)
     if opt.compression not in COMPRESSIONS:
         raise OutputError(f"compression {opt.compression!r}: one of {', '.join(COMPRESSIONS)}")

@@ -113,14 +113,14 @@ def run(args: argparse.Namespace) -> int:
 
     from eurocslam.commands._args import source_options
     from eurocslam.config import VISUAL_ONLY, load_config, resolve_mode
-    from eurocslam.dataset import open_sequence
+    from eurocslam.dataset import has_imu, open_sequence
 
     _check_live_args(args)
     cfg = load_config(args.config)
     if args.no_imu:
         cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
     source = open_sequence(args.sequence, **source_options(args))
-    cfg = resolve_mode(cfg, len(source.imu) > 0, source.name)
+    cfg = resolve_mode(cfg, has_imu(source), source.name)
     live_sink = _start_live(args) if args.live else None
     try:
         return _run(args, cfg, source, live_sink)

@@ -11,6 +11,7 @@ from eurocslam.dataset.types import (
     SequenceSource,
     SkipReport,
     StereoFrame,
+    has_imu,
 )
 
 __all__ = [
@@ -25,6 +26,7 @@ __all__ = [
     "StereoFrame",
     "StereoRig",
     "default_rig",
+    "has_imu",
     "load_rig",
     "open_sequence",
 ]

@@ -1,5 +1,8 @@
 """EuRoC ASL folder reader: `mav0/{cam0,cam1,imu0,state_groundtruth_estimate0,leica0}`.
 
+A folder without `imu0/` is a stereo-only sequence: no IMU rows, a rig without an IMU
+calibration (it runs visual-only). An `imu0/` folder must hold its sensor.yaml and rows.
+
 Streams images lazily (memory does not grow with sequence length). Stereo pairs are joined on
 timestamp, never on position. Listed-but-missing images, unreadable PNGs and frames present in
 one camera only are skipped and counted in `skips` (reported once by the caller).
@@ -32,6 +35,7 @@ from eurocslam.dataset.types import (
     PositionData,
     SkipReport,
     StereoFrame,
+    empty_imu,
 )
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import normalize_quat
@@ -263,8 +267,15 @@ class AslSequence:
         self.leica = self._read_leica()
         self.entries = self._join_cameras()
 
+    @property
+    def has_imu(self) -> bool:
+        """The folder has an `imu0/` (else it is a stereo-only sequence)."""
+        return (self.mav0 / "imu0").is_dir()
+
     # ---- tables -----------------------------------------------------------------------------
     def _read_imu(self) -> ImuData:
+        if not self.has_imu:
+            return empty_imu()
         path = self.mav0 / "imu0" / "data.csv"
         tab = read_numeric_csv(path, 7, self.skips)
         if tab.t_ns.size == 0:
@@ -272,8 +283,9 @@ class AslSequence:
         idx = _sorted_unique(tab.t_ns, "IMU", path, self.skips)
         v = tab.values[idx]
         t = tab.t_ns[idx]
-        if self.rig.imu.rate_hz > 0 and t.size > 1:
-            period_ns = 1e9 / self.rig.imu.rate_hz
+        rate_hz = self.rig.imu.rate_hz if self.rig.imu is not None else 0.0
+        if rate_hz > 0 and t.size > 1:
+            period_ns = 1e9 / rate_hz
             dt = np.diff(t)
             for i in np.nonzero(dt > 1.5 * period_ns)[0].tolist():
                 self.skips.add(

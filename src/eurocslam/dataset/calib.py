@@ -2,6 +2,9 @@
 
 EuRoC's `sensor.yaml` files begin with an OpenCV-style `%YAML:1.0` directive that PyYAML
 rejects; `load_sensor_yaml` strips it. A camera's `T_BS` is `T_body_cam`.
+
+A rig without an IMU (a stereo-only sequence: an ASL folder without `imu0/`, KITTI) has
+`imu = None`; it runs visual-only.
 """
 
 from __future__ import annotations
@@ -138,9 +141,11 @@ class ImuCalib:
 
 @dataclass(frozen=True)
 class StereoRig:
+    """Two cameras and, on a stereo-inertial rig, the IMU (`imu` is None on a stereo-only rig)."""
+
     cam0: CameraCalib
     cam1: CameraCalib
-    imu: ImuCalib
+    imu: ImuCalib | None
     # raw text of each sensor.yaml, keyed by sensor name (for MCAP attachments / synth output)
     yaml_texts: tuple[tuple[str, str], ...] = ()
 
@@ -212,15 +217,21 @@ def imu_from_yaml(data: dict[str, Any], path: Path | str, *, validate: bool = Tr
 
 
 def rig_from_texts(texts: dict[str, str], origin: str) -> StereoRig:
-    """Build a rig from the texts of cam0, cam1 and imu0 sensor.yaml files."""
-    for s in ("cam0", "cam1", "imu0"):
+    """Build a rig from the texts of cam0, cam1 and (optional: a stereo-only rig has none) imu0
+    sensor.yaml files."""
+    for s in ("cam0", "cam1"):
         if s not in texts:
             raise CalibrationError(f"{origin}/{s}/sensor.yaml: file not found")
     p = {s: f"{origin}/{s}/sensor.yaml" for s in texts}
+    imu = (
+        imu_from_yaml(load_sensor_yaml_text(texts["imu0"], p["imu0"]), p["imu0"])
+        if "imu0" in texts
+        else None
+    )
     rig = StereoRig(
         cam0=camera_from_yaml(load_sensor_yaml_text(texts["cam0"], p["cam0"]), "cam0", p["cam0"]),
         cam1=camera_from_yaml(load_sensor_yaml_text(texts["cam1"], p["cam1"]), "cam1", p["cam1"]),
-        imu=imu_from_yaml(load_sensor_yaml_text(texts["imu0"], p["imu0"]), p["imu0"]),
+        imu=imu,
         yaml_texts=tuple(sorted(texts.items())),
     )
     _raise_errors(check_stereo(rig), f"{p['cam0']} + {p['cam1']}")
@@ -239,14 +250,47 @@ def load_rig(folder: Path) -> StereoRig:
     """Load cam0, cam1, imu0 calibration from `folder/{cam0,cam1,imu0}/sensor.yaml`.
 
     `folder` is a `mav0/` folder or any folder laid out the same way (a calibration folder), or
-    a sequence folder holding `mav0/` (as every command accepts for SEQUENCE).
+    a sequence folder holding `mav0/` (as every command accepts for SEQUENCE). Without an
+    `imu0/` folder the rig is stereo-only (`imu` None); an `imu0/` folder without its
+    sensor.yaml is an error.
     """
     folder = calib_folder(folder)
     texts: dict[str, str] = {}
     for s in ("cam0", "cam1", "imu0"):
         path = folder / s / "sensor.yaml"
+        if s == "imu0" and not path.parent.is_dir():
+            continue
         texts[s] = read_yaml_text(path)
     return rig_from_texts(texts, str(folder))
+
+
+def _yaml_float(v: float) -> str:
+    """A float as YAML that reads back to the same double (repr; integers keep a '.0')."""
+    return repr(float(v))
+
+
+def camera_yaml_text(cam: CameraCalib, comment: str = "") -> str:
+    """An EuRoC-style `sensor.yaml` for `cam` that `camera_from_yaml` reads back to the same
+    values (every float written with `repr`, so it round-trips exactly)."""
+    T = ", ".join(_yaml_float(v) for v in np.asarray(cam.T_body_cam, dtype=np.float64).ravel())
+    intr = ", ".join(_yaml_float(v) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
+    dist = ", ".join(_yaml_float(v) for v in (cam.distortion or (0.0, 0.0, 0.0, 0.0)))
+    lines = [
+        "%YAML:1.0",
+        "sensor_type: camera",
+        f"comment: {comment or cam.name}",
+        "T_BS:",
+        "  cols: 4",
+        "  rows: 4",
+        f"  data: [{T}]",
+        f"rate_hz: {_yaml_float(cam.rate_hz)}",
+        f"resolution: [{cam.width}, {cam.height}]",
+        "camera_model: pinhole",
+        f"intrinsics: [{intr}]",
+        f"distortion_model: {cam.distortion_model}",
+        f"distortion_coefficients: [{dist}]",
+    ]
+    return "\n".join(lines) + "\n"
 
 
 @functools.cache

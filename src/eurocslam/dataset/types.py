@@ -51,6 +51,11 @@ class ImuData:
         return ImuData(self.t_ns[i0:i1], self.gyro[i0:i1], self.accel[i0:i1])
 
 
+def empty_imu() -> ImuData:
+    """No IMU samples (a stereo-only sequence)."""
+    return ImuData(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+
+
 @dataclass(frozen=True)
 class GroundTruth:
     """Pose of the body (IMU) frame in the ground-truth world frame (`T_gtworld_body`), with
@@ -105,7 +110,8 @@ class SkipReport:
 
 
 class SequenceSource(Protocol):
-    """What the pipeline needs from any input (ASL folder, ROS bag, MCAP)."""
+    """What the pipeline needs from any input (ASL folder, KITTI sequence, ROS bag, MCAP). A
+    stereo-only source has no IMU rows (`imu` empty) and `rig.imu` None."""
 
     name: str
     rig: StereoRig
@@ -126,3 +132,8 @@ class SequenceSource(Protocol):
         t_start_ns: int | None = None,
         t_end_ns: int | None = None,
     ) -> Iterator[StereoFrame]: ...
+
+
+def has_imu(source: SequenceSource) -> bool:
+    """The source can run stereo-inertial: it has IMU rows and an IMU calibration."""
+    return len(source.imu) > 0 and source.rig.imu is not None

@@ -32,7 +32,8 @@ Topics and frames (also in README "MCAP topics"):
 | /leica0 | geometry_msgs/PointStamped (prism position) | gt_world |
 
 `gt_body` is the ground-truth pose of `body` (the IMU frame); it is a separate tree from the SLAM
-`world -> body`, so both can live in one file.
+`world -> body`, so both can live in one file. A stereo-only source (no IMU rows or no IMU
+calibration) has no /imu0 topic and no imu0 in /tf_static.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from eurocslam.dataset.asl import read_image
-from eurocslam.dataset.types import SequenceSource, StereoFrame
+from eurocslam.dataset.types import SequenceSource, StereoFrame, has_imu
 from eurocslam.errors import OutputError
 from eurocslam.io import ros2, ros2_batch, ros2_calib
 from eurocslam.io.sink import Sink
@@ -67,12 +68,13 @@ def image_topic(cam: str, mode: str) -> str:
     return f"/{cam}/image_raw" if mode == "raw" else f"/{cam}/image_raw/compressed"
 
 
-def all_topics(mode: str = "raw") -> tuple[str, ...]:
+def all_topics(mode: str = "raw", imu: bool = True) -> tuple[str, ...]:
+    """Every topic of a conversion (`imu`: the source has an IMU)."""
     return (
         TF_STATIC,
         *(image_topic(c, mode) for c in CAMS),
         *(f"/{c}/camera_info" for c in CAMS),
-        IMU_TOPIC,
+        *((IMU_TOPIC,) if imu else ()),
         GT_POSE,
         GT_PATH,
         TF,
@@ -126,7 +128,8 @@ class SensorStreams:
         self.source = source
         self.opt = opt
         self.mode = opt.images
-        known = set(all_topics(opt.images))
+        self.has_imu = has_imu(source)
+        known = set(all_topics(opt.images, self.has_imu))
         if opt.topics is None:
             self.topics = frozenset(known)
         else:
@@ -149,12 +152,15 @@ class SensorStreams:
         self.infos = dict(
             zip(CAMS, ros2_calib.stereo_camera_infos(rig, opt.rectify_alpha), strict=True)
         )
-        self.gyro_cov, self.accel_cov = ros2_calib.imu_covariances(rig.imu)
         self.static_transforms = [
-            (FRAME_BODY, "imu0", rig.imu.T_body_imu),
             (FRAME_BODY, "cam0", rig.cam0.T_body_cam),
             (FRAME_BODY, "cam1", rig.cam1.T_body_cam),
         ]
+        self.gyro_cov, self.accel_cov = np.zeros((3, 3)), np.zeros((3, 3))
+        if self.has_imu:
+            assert rig.imu is not None
+            self.gyro_cov, self.accel_cov = ros2_calib.imu_covariances(rig.imu)
+            self.static_transforms.insert(0, (FRAME_BODY, "imu0", rig.imu.T_body_imu))
 
         # time series, cropped to [lo, hi]
         def crop(t: np.ndarray) -> slice:

@@ -45,7 +45,7 @@ from eurocslam.backend.initializer import (
 from eurocslam.backend.preintegration import make_params
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate
 from eurocslam.config import RunConfig, resolve_mode
-from eurocslam.dataset.types import SequenceSource
+from eurocslam.dataset.types import SequenceSource, has_imu
 from eurocslam.frontend.extraction import FrameFeatures
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.tracker import StereoTracker
@@ -78,7 +78,7 @@ class SlamPipeline:
         observers: Iterable[FrameObserver] = (),
     ) -> None:
         self.source = source
-        self.cfg = resolve_mode(cfg or RunConfig(), len(source.imu) > 0, source.name)
+        self.cfg = resolve_mode(cfg or RunConfig(), has_imu(source), source.name)
         self.observers = list(observers)
         self.imu = source.imu
         self.summary = RunSummary(sequence=source.name, mode=self.cfg.mode)

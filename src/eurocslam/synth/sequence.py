@@ -12,8 +12,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from eurocslam.dataset.calib import StereoRig, default_rig, load_rig
-from eurocslam.errors import DatasetError
+from eurocslam.dataset.calib import StereoRig, calib_folder, default_rig, load_rig
+from eurocslam.errors import CalibrationError, DatasetError
 from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
 from eurocslam.synth import writer
 from eurocslam.synth.imu import (
@@ -119,7 +119,13 @@ class Scene:
     @classmethod
     def build(cls, spec: SynthSpec) -> Scene:
         rig = load_rig(Path(spec.calib)) if spec.calib is not None else default_rig()
-        cam_rate, imu_rate = rig.cam0.rate_hz, rig.imu.rate_hz
+        if rig.imu is None:
+            raise CalibrationError(
+                f"{calib_folder(Path(str(spec.calib)))}/imu0/sensor.yaml: file not found "
+                "(a synthetic sequence has an IMU: the calibration needs one)"
+            )
+        imu_calib = rig.imu
+        cam_rate, imu_rate = rig.cam0.rate_hz, imu_calib.rate_hz
         ratio = imu_rate / cam_rate
         if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
             raise DatasetError(
@@ -163,7 +169,7 @@ class Scene:
                 motion.spline,
                 motion.t0_ns,
                 t_imu,
-                rig.imu,
+                imu_calib,
                 spec.seed,
                 noise=spec.imu_noise,
                 bias=spec.imu_bias,

@@ -59,10 +59,10 @@ def resolve_calibration(
         notes.append(f"attachments not read ({e})")
         texts = {}
     if texts:
-        if not all(s in texts for s in ("cam0", "cam1", "imu0")):
+        if not all(s in texts for s in ("cam0", "cam1")):
             raise CalibrationError(
                 f"{path}: MCAP attachments hold sensor.yaml for {sorted(texts)} but not "
-                "all of cam0, cam1, imu0; pass --calib DIR"
+                "both cam0 and cam1; pass --calib DIR"
             )
         return rig_from_texts(texts, f"{path} (attachment)"), f"{path.name} attachments"
     return default_rig(), BUILTIN

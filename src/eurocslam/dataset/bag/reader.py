@@ -37,6 +37,7 @@ from eurocslam.dataset.types import (
     PositionData,
     SkipReport,
     StereoFrame,
+    empty_imu,
 )
 from eurocslam.errors import CalibrationError, DatasetError
 from eurocslam.geometry import (
@@ -308,6 +309,12 @@ class BagSequence:
         return order[keep]
 
     def _build_imu(self, t: list[int], v: list[tuple[float, ...]]) -> ImuData:
+        if "imu" not in self.stats:  # no IMU topic: a stereo-only input
+            cands = ", ".join(self.topic_map.candidates("imu"))
+            self.notes.append(
+                f"no IMU topic (looked for {cands}): a stereo-only input, runs visual-only"
+            )
+            return empty_imu()
         topic = self.stats["imu"].topic
         if not t:
             raise DatasetError(f"{self.path}: {topic}: no IMU messages")

@@ -10,7 +10,7 @@ from typing import Any
 from eurocslam.errors import DatasetError
 
 ROLES = ("cam0", "cam1", "imu", "groundtruth", "leica")
-REQUIRED_ROLES = ("cam0", "cam1", "imu")
+REQUIRED_ROLES = ("cam0", "cam1")  # without an IMU topic the input is stereo-only
 ROLE_ALIASES = {
     "cam0": "cam0", "left": "cam0",
     "cam1": "cam1", "right": "cam1",

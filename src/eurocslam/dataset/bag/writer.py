@@ -47,12 +47,13 @@ def write_rosbag(
 ) -> Path:
     """Write a `SequenceSource` as a ROS 1 bag or a ROS 2 bag folder (sqlite3 or MCAP storage),
     with EuRoC's topic names: cam0/cam1 `sensor_msgs/Image` (`encoding` mono8, bgr8, rgb8 or
-    mono16), `/imu0`, ground truth as PoseStamped on `/groundtruth/pose` (`groundtruth="pose"`)
-    or as EuRoC's raw Vicon TransformStamped (`"vicon"`: the body pose moved to the marker
-    frame), and Leica PointStamped on `/leica/position`. Messages in stamp order, log time =
-    stamp (or header stamps all zero with `zero_header_stamps`); `cam1_offset_ns` shifts cam1's
-    stamps and log times (cameras without synchronised stamps); `compression`: ROS 1 chunk
-    compression "bz2" or "lz4", ROS 2 per-file "zstd". Returns the written path.
+    mono16), `/imu0` (when the sequence has IMU rows), ground truth as PoseStamped on
+    `/groundtruth/pose` (`groundtruth="pose"`) or as EuRoC's raw Vicon TransformStamped
+    (`"vicon"`: the body pose moved to the marker frame), and Leica PointStamped on
+    `/leica/position`. Messages in stamp order, log time = stamp (or header stamps all zero with
+    `zero_header_stamps`); `cam1_offset_ns` shifts cam1's stamps and log times (cameras without
+    synchronised stamps); `compression`: ROS 1 chunk compression "bz2" or "lz4", ROS 2 per-file
+    "zstd". Returns the written path.
     """
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
@@ -160,7 +161,8 @@ def write_rosbag(
         streams.append((int(t_ns[i]), k, make(i)) for i in range(n))
 
     streams.append(frames_stream())
-    add_stream(tm.imu[0], "sensor_msgs/msg/Imu", len(seq.imu), seq.imu.t_ns, imu_msg)
+    if len(seq.imu):  # a stereo-only sequence has no IMU topic
+        add_stream(tm.imu[0], "sensor_msgs/msg/Imu", len(seq.imu), seq.imu.t_ns, imu_msg)
     if gt is not None:
         if groundtruth == "vicon":
             gt_topic, gt_type = EUROC_VICON_TOPIC, "geometry_msgs/msg/TransformStamped"

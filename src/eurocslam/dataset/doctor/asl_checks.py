@@ -1,6 +1,6 @@
 """The doctor on an EuRoC ASL folder: files, calibration, CSVs, timestamps, time units, images,
 time overlap, values, and the reader's own verdict, each check guarded so one failure never hides
-the others' findings."""
+the others' findings. A folder without `imu0/` is stereo-only (a note, not an error)."""
 
 from __future__ import annotations
 
@@ -116,7 +116,9 @@ class _Doctor:
             d = self.mav0 / folder
             csv, yml = d / "data.csv", d / "sensor.yaml"
             if not d.is_dir():
-                if required:
+                if folder == "imu0":
+                    self.add(INFO, "files", "no IMU: a stereo-only sequence, runs visual-only", d)
+                elif required:
                     self.add(ERROR, "files", "folder missing", d)
                 elif folder == GT:
                     self.add(INFO, "files", "no ground truth: evaluation needs an external file", d)

@@ -48,6 +48,8 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
     for role in ROLES:
         st = seq.stats.get(role)
         if st is None:
+            if role == "imu":  # a stereo-only input: the reader's note (above) says so
+                continue
             level = INFO if role == "leica" else WARNING
             add(level, f"{role}: no topic (looked for {', '.join(seq.topic_map.candidates(role))})")
             continue
@@ -55,7 +57,8 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
         span = float(lt.max() - lt.min()) / 1e9 if st.count else 0.0
         add(INFO, f"{role}: {st.topic} [{st.msgtype}] {st.count} messages over {span:.1f} s")
         if st.count == 0:
-            add(ERROR if role in REQUIRED_ROLES else WARNING, f"{st.topic}: no messages")
+            required = role in REQUIRED_ROLES or role == "imu"  # an empty IMU topic is refused
+            add(ERROR if required else WARNING, f"{st.topic}: no messages")
             continue
         h = st.header_array()
         nz = h[h != 0]
@@ -75,7 +78,7 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
     nominal = {
         "cam0": seq.rig.cam0.rate_hz,
         "cam1": seq.rig.cam1.rate_hz,
-        "imu": seq.rig.imu.rate_hz,
+        "imu": seq.rig.imu.rate_hz if seq.rig.imu is not None else 0.0,
     }
     for role, rate in nominal.items():
         st = seq.stats.get(role)
@@ -111,7 +114,7 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
     ft = seq.frame_times
     if ft.size:
         f0, f1 = int(ft[0]), int(ft[-1])
-        i0, i1 = int(seq.imu.t_ns[0]), int(seq.imu.t_ns[-1])
+        i0, i1 = (int(seq.imu.t_ns[0]), int(seq.imu.t_ns[-1])) if len(seq.imu) else (f0, f1)
         if i1 < f0 or i0 > f1:
             add(ERROR, "the IMU and the cameras do not overlap in time")
         elif i0 > f0 or i1 < f1:
