@@ -4,6 +4,9 @@
 disparity at infinity): it rotates both cameras to a common orientation (`rect0`, `rect1`) with
 one pinhole matrix; rect1 sits at +baseline along rect0's x axis. The frontend rectifies its
 images with it and the CameraInfo messages publish its R and P, so both always agree.
+A rig that is rectified already (`is_rectified`: KITTI, any pre-rectified pair) is not
+rectified again: `passthrough` is set, R is the identity, P is the calibration's own pinhole and
+the geometry equals the calibration exactly; the frontend then uses the images as they are.
 
 `RectifiedStereo` is the geometry the rest of the system works in: stereo measurements
 (uL, uR, v) are rectified pixel coordinates, `triangulate_rect` / `project_rect` map them to and
@@ -52,10 +55,57 @@ class StereoRectification:
     P0: F64
     P1: F64
     geometry: RectifiedStereo
+    passthrough: bool = False  # the rig is rectified already: images are used as they are
+
+
+# a rotation or an off-axis translation below this (relative to the baseline) is rounding
+RECTIFIED_TOL = 1e-9
+
+
+def is_rectified(rig: StereoRig) -> bool:
+    """The rig is a rectified stereo pair already: identical pinhole intrinsics and resolution,
+    no distortion, the same orientation, cam1 beside cam0 along +x only."""
+    c0, c1 = rig.cam0, rig.cam1
+    if any(d != 0.0 for d in (*c0.distortion, *c1.distortion)):
+        return False
+    if (c0.fx, c0.fy, c0.cx, c0.cy, c0.resolution) != (c1.fx, c1.fy, c1.cx, c1.cy, c1.resolution):
+        return False
+    T = rig.T_cam1_cam0
+    b = -float(T[0, 3])
+    return (
+        b > 0.0
+        and bool(np.all(np.abs(T[:3, :3] - np.eye(3)) <= RECTIFIED_TOL))
+        and abs(float(T[1, 3])) <= RECTIFIED_TOL * b
+        and abs(float(T[2, 3])) <= RECTIFIED_TOL * b
+    )
+
+
+def _passthrough(rig: StereoRig, alpha: float) -> StereoRectification:
+    """The rectification of an already rectified rig: identity rotations, the calibration's
+    pinhole, its baseline (`-T_cam1_cam0[0, 3]`), exactly."""
+    c0 = rig.cam0
+    b = -float(rig.T_cam1_cam0[0, 3])
+    P0 = np.array([[c0.fx, 0.0, c0.cx, 0.0], [0.0, c0.fy, c0.cy, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    P1 = P0.copy()
+    P1[0, 3] = -c0.fx * b
+    geometry = RectifiedStereo(
+        fx=c0.fx,
+        fy=c0.fy,
+        cx=c0.cx,
+        cy=c0.cy,
+        baseline=b,
+        width=c0.width,
+        height=c0.height,
+        T_body_rect0=np.array(c0.T_body_cam, dtype=np.float64),
+    )
+    return StereoRectification(float(alpha), np.eye(3), np.eye(3), P0, P1, geometry, True)
 
 
 def rectify_stereo(rig: StereoRig, alpha: float = 0.0) -> StereoRectification:
-    """Rectify the stereo pair of `rig` (zero disparity at infinity) with `cv2.stereoRectify`."""
+    """Rectify the stereo pair of `rig` (zero disparity at infinity) with `cv2.stereoRectify`;
+    a rig that `is_rectified` already is passed through (`alpha` then changes nothing)."""
+    if is_rectified(rig):
+        return _passthrough(rig, alpha)
     c0, c1 = rig.cam0, rig.cam1
     T_cam1_cam0 = rig.T_cam1_cam0
     r1, r2, p1, p2, _, _, _ = cv2.stereoRectify(

@@ -1,16 +1,20 @@
-"""`eurocslam doctor SEQUENCE`: check an EuRoC ASL folder (or a ROS bag / MCAP input);
-exit 0 ok, 1 warnings, 2 errors."""
+"""`eurocslam doctor SEQUENCE`: check an EuRoC ASL folder, a KITTI odometry sequence or a ROS bag /
+MCAP input; exit 0 ok, 1 warnings, 2 errors."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from eurocslam.commands._args import add_sequence_arguments, source_options
 
 NAME = "doctor"
-HELP = "check an EuRoC sequence folder (files, CSVs, timestamps, images, calibration) or a bag"
+HELP = (
+    "check an EuRoC or KITTI sequence folder (files, CSVs, timestamps, images, calibration) "
+    "or a bag"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +42,8 @@ def run(args: argparse.Namespace) -> int:
     from eurocslam.dataset.bag.files import is_bag_path
     from eurocslam.dataset.doctor.asl_checks import diagnose
     from eurocslam.dataset.doctor.bag_checks import diagnose_bag
+    from eurocslam.dataset.doctor.kitti_checks import diagnose_kitti
+    from eurocslam.dataset.kitti_files import is_kitti_root, is_kitti_sequence
     from eurocslam.progress import bar
 
     if args.sample < 0:
@@ -48,16 +54,18 @@ def run(args: argparse.Namespace) -> int:
     else:
         if args.topic or args.calib:
             print(
-                "eurocslam doctor: error: --calib and --topic apply to bags; an ASL folder is "
-                "checked against its own sensor.yaml files",
+                "eurocslam doctor: error: --calib and --topic apply to bags; a sequence folder "
+                "is checked against its own calibration files",
                 file=sys.stderr,
             )
             return 2
         pbar = bar(
             total=None, desc="decoding images", unit="img", enabled=None if args.full else False
         )
+        path = Path(args.sequence)
+        check = diagnose_kitti if is_kitti_sequence(path) or is_kitti_root(path) else diagnose
         try:
-            report = diagnose(
+            report = check(
                 args.sequence,
                 full=args.full,
                 sample=args.sample,

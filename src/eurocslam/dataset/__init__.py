@@ -1,8 +1,9 @@
-"""Dataset access: the EuRoC ASL reader, ROS bags and MCAP as input (`bag`), calibration, and the
-checks on a sequence before it is trusted (`doctor`)."""
+"""Dataset access: the EuRoC ASL reader, the KITTI odometry reader, ROS bags and MCAP as input
+(`bag`), calibration, and the checks on a sequence before it is trusted (`doctor`)."""
 
 from eurocslam.dataset.asl import AslSequence
 from eurocslam.dataset.calib import CameraCalib, ImuCalib, StereoRig, default_rig, load_rig
+from eurocslam.dataset.kitti import KittiSequence
 from eurocslam.dataset.source import open_sequence
 from eurocslam.dataset.types import (
     GroundTruth,
@@ -20,6 +21,7 @@ __all__ = [
     "GroundTruth",
     "ImuCalib",
     "ImuData",
+    "KittiSequence",
     "PositionData",
     "SequenceSource",
     "SkipReport",

@@ -1,4 +1,5 @@
-"""Opening any input sequence: an EuRoC ASL folder or a ROS bag / MCAP, by what the path is."""
+"""Opening any input sequence: an EuRoC ASL folder, a KITTI odometry sequence or a ROS bag / MCAP,
+by what the path is."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ from eurocslam.dataset.bag.files import is_bag_path
 from eurocslam.dataset.bag.reader import BagSequence
 from eurocslam.dataset.bag.topics import TopicMap
 from eurocslam.dataset.calib import StereoRig, load_rig
+from eurocslam.dataset.kitti import KittiSequence
+from eurocslam.dataset.kitti_files import is_kitti_root, is_kitti_sequence
 from eurocslam.errors import DatasetError
 
 logger = logging.getLogger(__name__)
@@ -23,9 +26,10 @@ def open_sequence(
     calib: Path | str | None = None,
     topics: TopicMap | Mapping[str, str] | None = None,
     quiet: bool = False,
-) -> AslSequence | BagSequence:
-    """Open an input sequence: an EuRoC ASL folder (or its `mav0/`), a ROS 1 `.bag`, a ROS 2 bag
-    folder (`metadata.yaml`), a `.db3` or an `.mcap` (including `eurocslam convert` output).
+) -> AslSequence | BagSequence | KittiSequence:
+    """Open an input sequence: an EuRoC ASL folder (or its `mav0/`), a KITTI odometry sequence
+    folder (`sequences/NN`), a ROS 1 `.bag`, a ROS 2 bag folder (`metadata.yaml`), a `.db3` or an
+    `.mcap` (including `eurocslam convert` output).
 
     `rig` wins over `calib` (a folder of cam0/cam1/imu0 `sensor.yaml` files); `topics` maps bag
     topics to roles (`{"cam0": "/my/left"}`, bags only). Notes (calibration fallback, stamp
@@ -39,12 +43,16 @@ def open_sequence(
                 logger.info("note: %s", note)
         return seq
     if topics:
-        raise DatasetError(f"{p}: --topic applies to ROS bags and MCAP inputs, not ASL folders")
+        raise DatasetError(f"{p}: --topic applies to ROS bags and MCAP inputs, not folders")
     if p.is_file():
         raise DatasetError(
-            f"{p}: not a recognised input (expected an EuRoC ASL folder, a .bag, .db3 or .mcap "
-            "file, or a ROS 2 bag folder)"
+            f"{p}: not a recognised input (expected an EuRoC ASL folder, a KITTI sequence "
+            "folder, a .bag, .db3 or .mcap file, or a ROS 2 bag folder)"
         )
+    if is_kitti_sequence(p) or is_kitti_root(p):
+        if rig is not None or calib is not None:
+            raise DatasetError(f"{p}: a KITTI sequence carries its calibration (calib.txt)")
+        return KittiSequence(p)
     if rig is None and calib is not None:
         rig = load_rig(Path(calib))
     return AslSequence(path, rig)

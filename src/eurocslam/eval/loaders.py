@@ -11,7 +11,8 @@ Estimate inputs:
   `tf2_msgs/TFMessage` topic (`child_frame` picks the transform, as in `--child-frame`).
 
 Ground-truth inputs: an EuRoC sequence folder (`mav0/state_groundtruth_estimate0/data.csv`), that
-`data.csv`, a TUM file, or an MCAP topic (default `/groundtruth/pose`).
+`data.csv`, a TUM file, an MCAP topic (default `/groundtruth/pose`), or KITTI's `poses/NN.txt`
+(or its sequence folder `sequences/NN`), stamped by the sequence's `times.txt` (`kitti_gt`).
 
 Stamps come from `header.stamp` (not the MCAP log time).
 """
@@ -25,7 +26,9 @@ from typing import Any
 
 import numpy as np
 
+from eurocslam.dataset.kitti_files import is_kitti_sequence, looks_like_kitti_poses
 from eurocslam.errors import EurocSlamError, EvalError
+from eurocslam.eval.kitti_gt import kitti_groundtruth
 from eurocslam.io.trajectory_io import TimeUnit, count_repeated_stamps, read_trajectory
 from eurocslam.trajectory import Trajectory
 
@@ -353,6 +356,12 @@ def load_groundtruth(
     path = Path(path)
     if not path.exists():
         raise EvalError(f"{path}: no such file or folder")
+    if (path.is_dir() and is_kitti_sequence(path)) or (
+        path.is_file() and looks_like_kitti_poses(path)
+    ):
+        traj, poses, times = kitti_groundtruth(path)
+        note = f"{poses}: KITTI poses (T_world_cam0), stamped by {times}"
+        return Loaded(traj, "ground truth", str(poses), [note, *_notes(traj)])
     if path.is_dir():
         csv = groundtruth_csv_of(path)
         if csv is None:

@@ -2,7 +2,8 @@
 
 The rectification itself (R, P of both cameras and the `RectifiedStereo` geometry) comes from
 `eurocslam.camera.rectify_stereo`, the same function the CameraInfo messages use. Remap tables
-are computed once.
+are computed once. A rig that is rectified already (`rectification.passthrough`) is not
+remapped: its images are used as they are and points map to themselves.
 """
 
 from __future__ import annotations
@@ -29,12 +30,16 @@ class StereoRectifier:
         self.P0: F64 = rect.P0
         self.P1: F64 = rect.P1
         self.geometry = rect.geometry
-        self._map0 = cv2.initUndistortRectifyMap(
-            c0.K, c0.D, rect.R_rect0_cam0, rect.P0, size, cv2.CV_16SC2
-        )
-        self._map1 = cv2.initUndistortRectifyMap(
-            c1.K, c1.D, rect.R_rect1_cam1, rect.P1, size, cv2.CV_16SC2
-        )
+        self.passthrough = rect.passthrough
+        self._map0: tuple[np.ndarray, np.ndarray] | None = None
+        self._map1: tuple[np.ndarray, np.ndarray] | None = None
+        if not self.passthrough:
+            self._map0 = cv2.initUndistortRectifyMap(
+                c0.K, c0.D, rect.R_rect0_cam0, rect.P0, size, cv2.CV_16SC2
+            )
+            self._map1 = cv2.initUndistortRectifyMap(
+                c1.K, c1.D, rect.R_rect1_cam1, rect.P1, size, cv2.CV_16SC2
+            )
         self._size = size
 
     @property
@@ -42,9 +47,13 @@ class StereoRectifier:
         return self._size
 
     def rectify_left(self, img: U8) -> U8:
+        if self._map0 is None:  # rectified already
+            return img
         return np.asarray(cv2.remap(img, self._map0[0], self._map0[1], cv2.INTER_LINEAR))
 
     def rectify_right(self, img: U8) -> U8:
+        if self._map1 is None:
+            return img
         return np.asarray(cv2.remap(img, self._map1[0], self._map1[1], cv2.INTER_LINEAR))
 
     def raw_to_rect0(self, uv_raw: F64) -> F64:
@@ -53,6 +62,8 @@ class StereoRectifier:
         pts = np.asarray(uv_raw, dtype=np.float64).reshape(-1, 1, 2)
         if pts.shape[0] == 0:
             return np.zeros((0, 2))
+        if self.passthrough:
+            return pts.reshape(-1, 2).copy()
         out = undistort_points(pts, c0.K, c0.D, self.R_rect0_cam0, self.P0)
         return np.asarray(out.reshape(-1, 2), dtype=np.float64)
 
@@ -61,6 +72,8 @@ class StereoRectifier:
         uv = np.asarray(uv_rect, dtype=np.float64).reshape(-1, 2)
         if uv.shape[0] == 0:
             return np.zeros((0, 2))
+        if self.passthrough:
+            return uv.copy()
         g = self.geometry
         rays_rect = np.column_stack(
             [(uv[:, 0] - g.cx) / g.fx, (uv[:, 1] - g.cy) / g.fy, np.ones(len(uv))]

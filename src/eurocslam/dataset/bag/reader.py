@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from eurocslam.dataset.bag.calibration import BUILTIN, gt_sensor_extrinsic, resolve_calibration
 from eurocslam.dataset.bag.files import bag_kind, is_bag_path, open_reader
@@ -76,9 +77,15 @@ class TopicStats:
     def log_array(self) -> I64:
         return np.asarray(self.log_ns, dtype=np.int64)
 
+    def unset_stamps(self) -> NDArray[np.bool_]:
+        """Messages whose header stamp is zero though they were logged later: the stamp was never
+        set (a stamp and log time both 0, as a sequence whose times start at 0 has, is real)."""
+        unset: NDArray[np.bool_] = (self.header_array() == 0) & (self.log_array() != 0)
+        return unset
+
     @property
     def zero_stamps(self) -> int:
-        return int(np.count_nonzero(self.header_array() == 0))
+        return int(np.count_nonzero(self.unset_stamps()))
 
 
 @dataclass(frozen=True)
@@ -285,12 +292,13 @@ class BagSequence:
 
     # ---- arrays ---------------------------------------------------------------------------
     def _stamps(self, role: str, header: list[int]) -> I64:
-        """Header stamps, or the log times when any header stamp is zero (with a note)."""
+        """Header stamps, or the log times when any header stamp is unset (zero; with a note)."""
         st = self.stats[role]
         h = np.asarray(header, dtype=np.int64)
-        if h.size and np.any(h == 0):
+        unset = (h == 0) & (st.log_array() != 0)
+        if h.size and np.any(unset):
             self.notes.append(
-                f"{st.topic}: {int(np.count_nonzero(h == 0))} of {h.size} messages have a zero "
+                f"{st.topic}: {int(np.count_nonzero(unset))} of {h.size} messages have a zero "
                 "header stamp; using the bag's log time for this topic"
             )
             return st.log_array()
