@@ -1,5 +1,6 @@
-"""Shared fixtures. Real EuRoC data lives in ../shared/data/euroc beside the checkout; tests that
-need it skip cleanly where it is absent (a user's machine)."""
+"""Shared fixtures. Real EuRoC data lives in ../shared/data/euroc beside the checkout, the real
+KITTI excerpt in ../shared/data/kitti_excerpt; tests that need them skip cleanly where they are
+absent (a user's machine)."""
 
 from __future__ import annotations
 
@@ -10,11 +11,14 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_EUROC = Path(os.environ.get("EUROCSLAM_SHARED_EUROC", REPO.parent / "shared/data/euroc"))
+SHARED_KITTI = Path(
+    os.environ.get("EUROCSLAM_SHARED_KITTI", REPO.parent / "shared/data/kitti_excerpt")
+)
 
 
-def _need(path: Path) -> Path:
+def _need(path: Path, what: str = "real EuRoC data") -> Path:
     if not path.exists():
-        pytest.skip(f"real EuRoC data not available ({path})")
+        pytest.skip(f"{what} not available ({path})")
     return path
 
 
@@ -34,3 +38,10 @@ def v101_micro() -> Path:
 def mh01_first5() -> Path:
     """First 5 real stereo frames of MH_01 with every sensor.yaml."""
     return _need(SHARED_EUROC / "MH_01_easy_first5")
+
+
+@pytest.fixture(scope="session")
+def kitti_excerpt() -> Path:
+    """The real KITTI odometry excerpt's root: sequences/k2 (51 stereo frames, 1241x376, no IMU)
+    and poses/k2.txt."""
+    return _need(SHARED_KITTI / "sequences" / "k2", "the real KITTI excerpt").parent.parent

@@ -1,0 +1,103 @@
+"""The real KITTI excerpt (../shared/data/kitti_excerpt, skipped where absent): the reader, doctor,
+convert, and the same trajectory from its KITTI layout and from a stereo-only ASL copy."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from eurocslam.camera import rectify_stereo
+from eurocslam.config import VISUAL_ONLY, RunConfig
+from eurocslam.convert import convert
+from eurocslam.dataset import AslSequence, KittiSequence, open_sequence
+from eurocslam.dataset.doctor.kitti_checks import diagnose_kitti
+from eurocslam.pipeline.records import FrameOutput
+from eurocslam.pipeline.slam import SlamPipeline
+from kitti_helpers import kitti_to_asl
+
+
+@pytest.fixture(scope="module")
+def k2(kitti_excerpt: Path) -> Path:
+    return kitti_excerpt / "sequences" / "k2"
+
+
+def test_reader_on_the_excerpt(k2: Path) -> None:
+    s = open_sequence(k2)
+    assert isinstance(s, KittiSequence)
+    assert len(s.frame_times) == 51 and s.rig.imu is None and len(s.imu) == 0
+    c0 = s.rig.cam0
+    assert (c0.width, c0.height) == (1241, 376) and c0.rate_hz == pytest.approx(10.0)
+    assert (c0.fx, c0.fy, c0.cx, c0.cy) == (718.856, 718.856, 607.1928, 185.2157)
+    assert s.rig.baseline == pytest.approx(0.537, abs=5e-4)
+    assert s.rig.baseline == 386.1448 / 718.856
+    gt = s.groundtruth
+    assert gt is not None and len(gt) == 51 and np.allclose(gt.p[0], 0.0, atol=1e-9)
+    path = float(np.linalg.norm(np.diff(gt.p, axis=0), axis=1).sum())
+    assert path == pytest.approx(51.8, abs=0.1)
+    frames = list(s.frames())
+    assert len(frames) == 51 and not s.skips.total
+    assert frames[0].left is not None and frames[0].left.shape == (376, 1241)
+    assert rectify_stereo(s.rig).passthrough
+
+
+def test_doctor_is_clean_on_the_excerpt(k2: Path) -> None:
+    r = diagnose_kitti(k2)
+    assert r.exit_code == 0, [f.text() for f in r.findings]
+    assert r.stereo_pairs == 51 and r.image_headers_read == 102
+
+
+def test_convert_the_excerpt(k2: Path, tmp_path: Path) -> None:
+    out = tmp_path / "k2.mcap"
+    res = convert(open_sequence(k2), out)
+    assert res.frames == 51
+    with open(out, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None
+        counts = {
+            summary.channels[cid].topic: n
+            for cid, n in summary.statistics.channel_message_counts.items()  # type: ignore[union-attr]
+        }
+    assert counts["/cam0/image_raw"] == counts["/cam1/image_raw"] == 51
+    assert counts["/groundtruth/pose"] == 51 and counts["/tf_static"] == 1
+    assert "/imu0" not in counts
+    back = open_sequence(out)
+    assert len(back.frame_times) == 51 and back.rig.baseline == 386.1448 / 718.856
+
+
+def test_asl_copy_gives_the_same_trajectory(k2: Path, tmp_path: Path) -> None:
+    """The excerpt as a stereo-only ASL folder (no imu0/) gives the same trajectory as its KITTI
+    layout: the same rig, the same images, the same times."""
+    asl = AslSequence(kitti_to_asl(k2, tmp_path / "k2_asl"))
+    kitti = KittiSequence(k2)
+    assert asl.rig.imu is None and len(asl.imu) == 0
+    for a, b in ((asl.rig.cam0, kitti.rig.cam0), (asl.rig.cam1, kitti.rig.cam1)):
+        assert (a.fx, a.fy, a.cx, a.cy, a.resolution) == (b.fx, b.fy, b.cx, b.cy, b.resolution)
+        assert np.array_equal(a.T_body_cam, b.T_body_cam) and a.rate_hz == b.rate_hz
+    assert asl.frame_times.tolist() == kitti.frame_times.tolist()
+    cfg = dataclasses.replace(RunConfig(), mode=VISUAL_ONLY)
+    steps: dict[str, list[tuple[object, ...]]] = {"asl": [], "kitti": []}
+
+    def record(key: str) -> Callable[[FrameOutput], None]:
+        def on(out: FrameOutput) -> None:
+            fe = out.frontend
+            seen = None if fe is None else (fe.n_features, fe.n_stereo, fe.n_tracked)
+            uv = None if fe is None else fe.stereo_uv.tobytes()
+            steps[key].append((out.t_ns, out.state, out.is_keyframe, seen, uv))
+
+        return on
+
+    ra = SlamPipeline(asl, cfg).run(on_progress=record("asl"))
+    rk = SlamPipeline(kitti, cfg).run(on_progress=record("kitti"))
+    assert ra.summary.frames == rk.summary.frames == 51
+    assert steps["asl"] == steps["kitti"]  # frame by frame: states, keyframes, tracking counts
+    assert ra.online_t_ns.tolist() == rk.online_t_ns.tolist()
+    assert ra.final_t_ns.tolist() == rk.final_t_ns.tolist()
+    assert np.allclose(ra.online_T, rk.online_T, rtol=0, atol=1e-9)
+    assert np.allclose(ra.final_T, rk.final_T, rtol=0, atol=1e-9)
+    assert len(ra.summary.resets) == len(rk.summary.resets)
