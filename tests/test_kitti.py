@@ -212,3 +212,21 @@ def test_bad_file_through_the_cli_is_one_stderr_line(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "times.txt:3: 'xyz' is not a time in seconds" in err[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_rig_sensor_yaml_texts_read_back_exactly(seq: Path) -> None:
+    from eurocslam.dataset.calib import rig_from_texts
+
+    rig = KittiSequence(seq).rig
+    back = rig_from_texts(dict(rig.yaml_texts), "attachments")
+    assert back.imu is None
+    for a, b in ((back.cam0, rig.cam0), (back.cam1, rig.cam1)):
+        assert (a.fx, a.fy, a.cx, a.cy, a.resolution, a.rate_hz) == (
+            b.fx,
+            b.fy,
+            b.cx,
+            b.cy,
+            b.resolution,
+            b.rate_hz,
+        )
+        assert np.array_equal(a.T_body_cam, b.T_body_cam) and a.distortion == b.distortion

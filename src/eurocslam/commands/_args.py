@@ -41,8 +41,9 @@ def non_negative_float(value: str) -> float:
 
 
 SEQUENCE_HELP = (
-    "sequence folder (containing mav0/) or its mav0/ folder; also a ROS 1 .bag, a ROS 2 bag "
-    "folder, .db3 or .mcap (e.g. the output of convert)"
+    "sequence folder (containing mav0/) or its mav0/ folder; a KITTI odometry sequence folder "
+    "(sequences/NN); also a ROS 1 .bag, a ROS 2 bag folder, .db3 or .mcap (e.g. the output of "
+    "convert)"
 )
 
 
@@ -55,8 +56,9 @@ def add_sequence_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         type=Path,
         default=None,
-        help="folder with cam0/, cam1/, imu0/ sensor.yaml files (bags carry no calibration; "
-        "default: an MCAP's attached sensor.yaml, else the built-in EuRoC calibration)",
+        help="folder with cam0/, cam1/ and (optional) imu0/ sensor.yaml files (bags carry no "
+        "calibration; default: an MCAP's attached sensor.yaml, else the built-in EuRoC "
+        "calibration)",
     )
     parser.add_argument(
         "--topic",

@@ -1,4 +1,5 @@
-"""`eurocslam convert SEQUENCE -o out.mcap`: EuRoC ASL folder -> ROS 2 MCAP (Foxglove, ros2 bag)."""
+"""`eurocslam convert SEQUENCE -o out.mcap`: an EuRoC ASL folder, a KITTI sequence or a bag -> ROS 2
+MCAP (Foxglove, ros2 bag)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,10 @@ from pathlib import Path
 from eurocslam.commands._args import add_sequence_arguments, finite_float, source_options
 
 NAME = "convert"
-HELP = "convert an EuRoC sequence to a ROS 2 MCAP (images, camera_info, IMU, tf, ground truth)"
+HELP = (
+    "convert an EuRoC or KITTI sequence to a ROS 2 MCAP (images, camera_info, IMU, tf, ground "
+    "truth)"
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

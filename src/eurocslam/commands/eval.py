@@ -17,6 +17,7 @@ examples:
   eurocslam eval est.tum gt/data.csv --align posyaw --plot plots/ --json eval.json
   eurocslam eval run.mcap                          /slam/pose against /groundtruth/pose
   eurocslam eval bag.mcap gt.tum --topic /tf --child-frame base_link
+  eurocslam eval OUT/ kitti/poses/00.txt --align sim3   KITTI poses, stamped by times.txt
 
 The headline is ATE translation RMSE after SE(3) Umeyama alignment over the whole trajectory.
 RPE: per frame (evo's delta 1 frame) and over 10..50 % of the ground-truth path length (rpg).
@@ -32,8 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "groundtruth",
         type=Path,
         nargs="?",
-        help="EuRoC sequence folder, state_groundtruth_estimate0/data.csv, TUM, or MCAP "
-        "(default: /groundtruth/pose of the estimate's MCAP)",
+        help="EuRoC sequence folder, state_groundtruth_estimate0/data.csv, TUM, MCAP, or KITTI "
+        "poses/NN.txt or sequences/NN (default: /groundtruth/pose of the estimate's MCAP)",
     )
     p.add_argument(
         "--topic", metavar="TOPIC", help="estimate topic in an MCAP (default /slam/pose)"

@@ -264,35 +264,6 @@ def load_rig(folder: Path) -> StereoRig:
     return rig_from_texts(texts, str(folder))
 
 
-def _yaml_float(v: float) -> str:
-    """A float as YAML that reads back to the same double (repr; integers keep a '.0')."""
-    return repr(float(v))
-
-
-def camera_yaml_text(cam: CameraCalib, comment: str = "") -> str:
-    """An EuRoC-style `sensor.yaml` for `cam` that `camera_from_yaml` reads back to the same
-    values (every float written with `repr`, so it round-trips exactly)."""
-    T = ", ".join(_yaml_float(v) for v in np.asarray(cam.T_body_cam, dtype=np.float64).ravel())
-    intr = ", ".join(_yaml_float(v) for v in (cam.fx, cam.fy, cam.cx, cam.cy))
-    dist = ", ".join(_yaml_float(v) for v in (cam.distortion or (0.0, 0.0, 0.0, 0.0)))
-    lines = [
-        "%YAML:1.0",
-        "sensor_type: camera",
-        f"comment: {comment or cam.name}",
-        "T_BS:",
-        "  cols: 4",
-        "  rows: 4",
-        f"  data: [{T}]",
-        f"rate_hz: {_yaml_float(cam.rate_hz)}",
-        f"resolution: [{cam.width}, {cam.height}]",
-        "camera_model: pinhole",
-        f"intrinsics: [{intr}]",
-        f"distortion_model: {cam.distortion_model}",
-        f"distortion_coefficients: [{dist}]",
-    ]
-    return "\n".join(lines) + "\n"
-
-
 @functools.cache
 def default_rig() -> StereoRig:
     """EuRoC's real cam0/cam1/imu0 calibration, shipped inside the package."""

@@ -19,7 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from eurocslam.dataset.asl import FrameEntry, decode_image
-from eurocslam.dataset.calib import CameraCalib, StereoRig, camera_yaml_text, check_stereo
+from eurocslam.dataset.calib import CameraCalib, StereoRig, check_stereo
+from eurocslam.dataset.calib_yaml import camera_yaml_text
 from eurocslam.dataset.kitti_files import (
     CALIB,
     IMAGE_DIRS,
