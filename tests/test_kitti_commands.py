@@ -210,3 +210,19 @@ def test_a_rig_that_needs_rectifying_is_still_rectified(seq: Path) -> None:
         assert not is_rectified(r)
         rectifier = StereoRectifier(r)
         assert not rectifier.passthrough and rectifier._map0 is not None
+
+
+def test_bench_takes_a_kitti_sequence(seq: Path, tmp_path: Path) -> None:
+    from eurocslam.eval.bench.sequences import check_sequence_folder
+    from eurocslam.eval.bench.task import RunRecord, _evaluate_run
+    from eurocslam.eval.evaluate import EvalConfig
+
+    assert check_sequence_folder("k", seq) is None
+    out = tmp_path / "run"
+    out.mkdir()
+    _estimate(seq, out / "trajectory_final.tum")
+    rec = RunRecord("k", 0, out)
+    _evaluate_run(rec, seq, EvalConfig())
+    assert rec.ok and rec.final is not None
+    no_gt = make_kitti(tmp_path / "other", poses=False)
+    assert "a KITTI sequence without" in str(check_sequence_folder("k", no_gt))

@@ -16,6 +16,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from eurocslam.dataset.kitti_files import is_kitti_sequence, poses_path_of
 from eurocslam.errors import ConfigError
 from eurocslam.eval.bench.plan import SYNTH_PATH_KEYS, BenchPlan
 from eurocslam.eval.loaders import groundtruth_csv_of
@@ -86,6 +87,10 @@ def check_sequence_folder(name: str, path: Path) -> str | None:
     """Why `path` cannot be benched (None: it can)."""
     if not path.exists():
         return f"{path} does not exist"
+    if is_kitti_sequence(path):
+        if not poses_path_of(path).is_file():
+            return f"{path}: a KITTI sequence without {poses_path_of(path)} to evaluate against"
+        return None
     if groundtruth_csv_of(path) is None:
         return f"{path} has no mav0/state_groundtruth_estimate0/data.csv to evaluate against"
     return None

@@ -20,9 +20,11 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from eurocslam.dataset.kitti_files import is_kitti_sequence
 from eurocslam.errors import ConfigError, EurocSlamError
 from eurocslam.eval.bench.process import last_line, run_process
 from eurocslam.eval.evaluate import EvalConfig, EvalResult, evaluate
+from eurocslam.eval.kitti_gt import kitti_groundtruth
 from eurocslam.eval.loaders import RUN_FINAL, RUN_ONLINE, groundtruth_csv_of
 from eurocslam.eval.report import markdown_report, to_json_dict, write_json, write_text
 from eurocslam.io.trajectory_io import read_trajectory
@@ -217,11 +219,14 @@ def worker_identity(executor: str) -> dict[str, Any]:
 
 
 def _evaluate_run(rec: RunRecord, seq: Path, cfg: EvalConfig) -> None:
-    gt_csv = groundtruth_csv_of(seq)
-    if gt_csv is None:
-        rec.error = f"{seq}: no mav0/state_groundtruth_estimate0/data.csv to evaluate against"
-        return
-    gt = read_trajectory(gt_csv)
+    if is_kitti_sequence(seq):  # poses/NN.txt stamped by times.txt
+        gt, gt_file, _ = kitti_groundtruth(seq)
+    else:
+        gt_csv = groundtruth_csv_of(seq)
+        if gt_csv is None:
+            rec.error = f"{seq}: no mav0/state_groundtruth_estimate0/data.csv to evaluate against"
+            return
+        gt, gt_file = read_trajectory(gt_csv), gt_csv
     final = rec.out_dir / RUN_FINAL
     if not final.exists():
         rec.error = f"run wrote no {RUN_FINAL}"
@@ -233,7 +238,7 @@ def _evaluate_run(rec: RunRecord, seq: Path, cfg: EvalConfig) -> None:
     )
     rec.final, rec.online = _brief(res_final), _brief(res_online)
     results = [r for r in (res_final, res_online) if r is not None]
-    write_json(rec.out_dir / "eval.json", to_json_dict(results, {"groundtruth": str(gt_csv)}))
+    write_json(rec.out_dir / "eval.json", to_json_dict(results, {"groundtruth": str(gt_file)}))
     write_text(rec.out_dir / "eval.md", markdown_report(results))
 
 
