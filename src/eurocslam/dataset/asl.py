@@ -55,7 +55,8 @@ def resolve_mav0(path: Path | str) -> Path:
     if (p / "cam0").is_dir() or (p / "imu0").is_dir():
         return p
     raise DatasetError(
-        f"{p}: not an EuRoC ASL sequence (expected a 'mav0/' folder with cam0, cam1, imu0)"
+        f"{p}: not an EuRoC ASL sequence (expected a 'mav0/' folder with cam0, cam1, imu0) "
+        "or KITTI sequence (expected image_0, image_1, calib.txt, times.txt)"
     )
 
 
