@@ -49,3 +49,7 @@ def test_groundtruth_overlay_matches_position_and_yaw_only() -> None:
     T2 = groundtruth_alignment(T_tilted, T_gt)
     np.testing.assert_allclose(T2[:3, :3] @ [0, 0, 1], [0, 0, 1], atol=1e-12)
     np.testing.assert_allclose((T2 @ T_gt)[:3, 3], T_est[:3, 3], atol=1e-12)
+    # visual-only (no gravity in either frame: KITTI's world is its first camera, y down): the
+    # whole first pose places the ground truth
+    T3 = groundtruth_alignment(T_tilted, T_gt, yaw_only=False)
+    np.testing.assert_allclose(T3 @ T_gt, T_tilted, atol=1e-12)

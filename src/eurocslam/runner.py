@@ -210,7 +210,14 @@ class _McapOutput:
             )
             dest = TeeSink([self.sink, *extra_sinks]) if extra_sinks else self.sink
             streams.write_static(dest)
-            self.writer = SlamMcapWriter(dest, streams, source.groundtruth, cfg.output)
+            self.writer = SlamMcapWriter(
+                dest,
+                streams,
+                source.groundtruth,
+                cfg.output,
+                gravity_aligned=cfg.inertial,
+                drone_model=source.rig.imu is not None,
+            )
         except BaseException:
             self.abort()
             raise

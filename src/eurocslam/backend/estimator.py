@@ -28,6 +28,7 @@ starts a new segment.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -49,6 +50,19 @@ from eurocslam.config import RunConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
 from eurocslam.geometry import F64, inv_T
+
+
+@dataclass(frozen=True)
+class _StereoAdded:
+    """What `_add_stereo` put into a keyframe's graph: the factors the global graph takes
+    instead (by index in the graph: those of landmarks whose smoother key is not their first),
+    priors for the smoother alone (re-found landmarks anchored at their last position), the
+    number of stereo factors and of new landmarks."""
+
+    subst: dict[int, gtsam.NonlinearFactor]
+    anchors: list[gtsam.NonlinearFactor]
+    n_factors: int
+    n_new: int
 
 
 class KeyframeEstimator:
@@ -155,10 +169,10 @@ class KeyframeEstimator:
             np.asarray(init.ba, float),
         )
         self._reset_pim(init.t_ns, self._state)
-        subst, _, _ = self._add_stereo(
+        added = self._add_stereo(
             0, init.T_world_body, landmark_ids, stereo_uv, stereo_sigma, graph, values, stamps, 0.0
         )
-        self._update(graph, values, stamps, subst)
+        self._update(graph, values, stamps, added)
         return self._read_state(0, init.t_ns)
 
     # ---- IMU prediction ------------------------------------------------------------------------
@@ -249,10 +263,10 @@ class KeyframeEstimator:
         tk = self._t(t_ns)
         for key in (X(k), V(k), B(k)):
             stamps[key] = tk
-        subst, n_factors, n_new = self._add_stereo(
+        added = self._add_stereo(
             k, T_guess, landmark_ids, stereo_uv, stereo_sigma, graph, values, stamps, tk
         )
-        n_known = n_factors - n_new
+        n_known = added.n_factors - added.n_new
         if not imu_link and n_known < self.cfg.backend.min_obs_without_imu:
             if self._imu is not None or T_world_body_guess is None:
                 raise EstimatorFailure(
@@ -272,7 +286,7 @@ class KeyframeEstimator:
             )
         self._k = k
         self._seg.kf_times.append(t_ns)
-        self._update(graph, values, stamps, subst)
+        self._update(graph, values, stamps, added)
         update = self._read_state(k, t_ns)
         self._reset_pim(t_ns, update.nav)
         return update
@@ -316,10 +330,8 @@ class KeyframeEstimator:
         values: gtsam.Values,
         stamps: dict[int, float],
         tk: float,
-    ) -> tuple[dict[int, gtsam.NonlinearFactor], int, int]:
-        """Stereo factors into `graph`. Returns the factors the global graph takes instead
-        (by index in `graph`: those of landmarks whose smoother key is not their first), the
-        number of stereo factors and of new landmarks."""
+    ) -> _StereoAdded:
+        """Stereo factors into `graph`; see `_StereoAdded` for what else comes back."""
         b = self.cfg.backend
         st = self._stereo.geometry
         lms = self._lms
@@ -330,6 +342,16 @@ class KeyframeEstimator:
             if stereo_sigma is None or len(stereo_sigma) != len(uv)
             else np.round(np.asarray(stereo_sigma, dtype=np.float64), 3)
         )
+        # a landmark the smoother let go and the tracker re-found (map reuse) is anchored at its
+        # last smoothed position: the online estimate stays in the frame of the map it returns
+        # to instead of drifting away from it. The smoother alone takes these priors; the final
+        # batch has the landmark's observations then and now on one variable instead
+        anchor = (
+            gtsam.noiseModel.Isotropic.Sigma(3, b.refound_prior_sigma_m)
+            if b.refound_prior_sigma_m > 0
+            else None
+        )
+        anchors: list[gtsam.NonlinearFactor] = []
         disp = uv[:, 0] - uv[:, 1]
         ok = np.isfinite(uv).all(axis=1) & (disp >= b.min_disparity_px)
         depth = np.where(ok, st.fx * st.baseline / np.where(ok, disp, 1.0), np.inf)
@@ -369,11 +391,14 @@ class KeyframeEstimator:
             fid = int(ids[i])
             key_i = lms.key_of.get(fid)
             if key_i is None or not lms.active[key_i]:
+                old = key_i
                 key_i = lms.new_key(fid)
                 Xw = world_point(i)
                 values.insert(L(key_i), gtsam.Point3(*Xw))
                 lms.pos[key_i] = Xw
                 n_new += 1
+                if anchor is not None and old is not None and lms.smoothed[old]:
+                    anchors.append(gtsam.PriorFactorPoint3(L(key_i), lms.pos[old], anchor))
             stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
             obs = (uv[i, 0], uv[i, 1], uv[i, 2], float(scale[i]))
             gkey = int(lms.gkey[key_i])
@@ -393,7 +418,7 @@ class KeyframeEstimator:
             gkey = int(lms.gkey[key_i])
             lms.nobs[gkey] += 1
             self._seg.final_only.append((k, gkey, uv[i, 0], uv[i, 1], uv[i, 2], scale[i]))
-        return subst, len(idx), n_new
+        return _StereoAdded(subst, anchors, len(idx), n_new)
 
     # ---- smoother -------------------------------------------------------------------------------
     def _update(
@@ -401,11 +426,16 @@ class KeyframeEstimator:
         graph: gtsam.NonlinearFactorGraph,
         values: gtsam.Values,
         stamps: dict[int, float],
-        subst: dict[int, gtsam.NonlinearFactor] | None = None,
+        added: _StereoAdded | None = None,
     ) -> None:
-        subst = subst or {}
+        """One smoother update with `graph`; the segment's global graph takes the same factors
+        (re-keyed where `added.subst` says) except the smoother-only anchors."""
+        subst = added.subst if added is not None else {}
         for i in range(graph.size()):
             self._seg.graph.add(subst.get(i, graph.at(i)))
+        if added is not None:
+            for f in added.anchors:
+                graph.add(f)
         try:
             if self._smoother is not None:
                 ts = gtsam.FixedLagSmootherKeyTimestampMap()

@@ -34,6 +34,7 @@ class LandmarkKeys:
         self.pos = np.zeros((1024, 3))
         self.fid = np.zeros(1024, np.int64)
         self.active = np.zeros(1024, bool)
+        self.smoothed = np.zeros(1024, bool)  # the key was in the smoother window (pos smoothed)
         self.gkey = np.zeros(1024, np.int64)  # the landmark's key in the global graph
         self.nobs = np.zeros(1024, np.int64)  # per global key: observations in the segment
 
@@ -53,6 +54,7 @@ class LandmarkKeys:
             self.gkey = np.resize(self.gkey, n)
             self.nobs = np.pad(self.nobs, (0, n - self.nobs.size))  # zeros
             self.active = np.pad(self.active, (0, n - self.active.size))  # False
+            self.smoothed = np.pad(self.smoothed, (0, n - self.smoothed.size))
         old = self.key_of.get(fid)
         self.gkey[key_i] = key_i if old is None else self.gkey[old]
         self.key_of[fid] = key_i
@@ -66,6 +68,7 @@ class LandmarkKeys:
         if idx.size:
             self.pos[idx] = pts
             self.active[idx] = True
+            self.smoothed[idx] = True
 
     def in_window(self) -> tuple[NDArray[np.int64], F64]:
         """Frontend ids and world positions of the landmarks in the smoother window."""

@@ -35,7 +35,7 @@ import numpy as np
 
 from eurocslam.config import OutputConfig
 from eurocslam.dataset.types import GroundTruth, StereoFrame
-from eurocslam.geometry import F64, make_T, quat_wxyz_to_rot, rot_z
+from eurocslam.geometry import F64, inv_T, make_T, quat_wxyz_to_rot, rot_z
 from eurocslam.io import drone, ros2
 from eurocslam.io.sensor_streams import FRAME_GT_BODY, FRAME_GT_WORLD, SensorStreams
 from eurocslam.io.sink import Sink
@@ -82,8 +82,11 @@ def yaw_between(R_a: F64, R_b: F64) -> float:
     return float(np.arctan2(D[1, 0] - D[0, 1], D[0, 0] + D[1, 1]))
 
 
-def groundtruth_alignment(T_world_body: F64, T_gtworld_body: F64) -> F64:
-    """`T_world_gtworld`: yaw + translation putting the ground-truth body on the estimate."""
+def groundtruth_alignment(T_world_body: F64, T_gtworld_body: F64, yaw_only: bool = True) -> F64:
+    """`T_world_gtworld` putting the ground-truth body on the estimate: yaw + translation where
+    both frames are gravity-aligned (stereo-inertial), the whole pose otherwise."""
+    if not yaw_only:
+        return T_world_body @ inv_T(T_gtworld_body)
     yaw = yaw_between(T_world_body[:3, :3], T_gtworld_body[:3, :3])
     R = rot_z(yaw)
     return make_T(R, T_world_body[:3, 3] - R @ T_gtworld_body[:3, 3])
@@ -109,8 +112,16 @@ class SlamMcapWriter:
         streams: SensorStreams,
         groundtruth: GroundTruth | None,
         cfg: OutputConfig | None = None,
+        *,
+        gravity_aligned: bool = True,
+        drone_model: bool = True,
     ) -> None:
+        """`gravity_aligned`: the estimate's world is levelled by gravity (stereo-inertial), so
+        the ground-truth overlay is placed by position and yaw only; `drone_model`: draw the
+        drone (EuRoC's body is its IMU frame; a camera-only rig's body is its left camera)."""
         self.sink = sink
+        self.gravity_aligned = gravity_aligned
+        self.drone_model = drone_model
         self.streams = streams
         self.gt = groundtruth
         self.cfg = cfg or OutputConfig()
@@ -132,7 +143,7 @@ class SlamMcapWriter:
             if self.cfg.groundtruth_overlay and not self._gt_aligned and self.gt is not None:
                 T_gt = _gt_pose_at(self.gt, t)
                 if T_gt is not None:
-                    self.T_world_gtworld = groundtruth_alignment(T, T_gt)
+                    self.T_world_gtworld = groundtruth_alignment(T, T_gt, self.gravity_aligned)
                     self._w(
                         "/tf_static",
                         ros2.TF_MESSAGE,
@@ -144,7 +155,8 @@ class SlamMcapWriter:
                     self._gt_aligned = True
             self._w("/tf", ros2.TF_MESSAGE, t, ros2.tf_message([ros2.Transform(t, WORLD, BODY, T)]))
             self._w("/slam/pose", ros2.POSE_STAMPED, t, ros2.pose_stamped(t, WORLD, T))
-            self._w("/slam/drone", drone.MSGTYPE, t, drone.drone_markers(BODY, t))
+            if self.drone_model:
+                self._w("/slam/drone", drone.MSGTYPE, t, drone.drone_markers(BODY, t))
             self._write_groundtruth_overlay(t, T)
         self._w("/slam/state", ros2.STRING, t, ros2.string(out.state.value))
         if out.is_keyframe:
@@ -213,12 +225,13 @@ class SlamMcapWriter:
         T_gt = _gt_pose_at(self.gt, t)
         if T_gt is None:
             return
-        self._w(
-            "/groundtruth/drone",
-            drone.MSGTYPE,
-            t,
-            drone.drone_markers(FRAME_GT_BODY, t, drone.GROUNDTRUTH_COLOR, ns="drone_gt"),
-        )
+        if self.drone_model:
+            self._w(
+                "/groundtruth/drone",
+                drone.MSGTYPE,
+                t,
+                drone.drone_markers(FRAME_GT_BODY, t, drone.GROUNDTRUTH_COLOR, ns="drone_gt"),
+            )
         e = T_world_body[:3, 3] - (self.T_world_gtworld @ T_gt)[:3, 3]
         self._w(
             "/slam/position_error",
