@@ -384,9 +384,9 @@ def test_final_batch_joins_a_landmark_the_smoother_let_go(monkeypatch: pytest.Mo
 
     orig = LandmarkKeys.new_key
 
-    def forget(self: LandmarkKeys, fid: int) -> int:
+    def forget(self: LandmarkKeys, fid: int, kf: int) -> int:
         self.key_of.pop(fid, None)
-        return orig(self, fid)
+        return orig(self, fid, kf)
 
     monkeypatch.setattr(LandmarkKeys, "new_key", forget)
     _, est, _ = _run_sim(cfg, duration=12.0)

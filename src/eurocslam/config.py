@@ -89,6 +89,9 @@ class BackendConfig:
     # it revisits instead of drifting away from it. Full-length MH_01 replica: online ATE
     # 20.5 -> 7.9 mm with 0.02, final 3.0 -> 2.5 mm
     refound_prior_sigma_m: float = 0.02
+    # a pose found by place recognition (relocalization prior, loop edge): sigmas (rad, m)
+    place_rot_sigma: float = 0.01
+    place_pos_sigma: float = 0.02
     vo_bridge_rot_sigma: float = 0.02  # visual-only: a keyframe with too few of them is
     vo_bridge_pos_sigma: float = 0.05  # tied to the last one by the frontend's motion (rad, m)
     max_landmarks_per_keyframe: int = 100
@@ -123,6 +126,36 @@ class HealthConfig:
 
 
 @dataclass(frozen=True)
+class PlacesConfig:
+    """Place recognition (places/): relocalization, loop closure and merging by appearance."""
+
+    enabled: bool = True
+    vocabulary: str = ""  # a vocabulary .npz (places.train); "": the one shipped
+    candidates: int = 5  # best-scored keyframes verified per query
+    min_score: float = 0.01  # appearance score below which a keyframe is not a candidate
+    # verification: descriptor matches (Hamming, ratio test), PnP-RANSAC, refinement
+    max_hamming: int = 60
+    ratio: float = 0.8
+    min_inliers: int = 40
+    pnp_reprojection_px: float = 3.0
+    pnp_iterations: int = 300
+    # loop closure: candidates at least this much older than the query (the recent past always
+    # looks like the present), confirmed by this many consecutive keyframes whose corrections
+    # agree within the tolerances; a correction smaller than the thresholds is left to the
+    # projection re-finding of map reuse
+    loop_min_age_s: float = 10.0
+    loop_consistency: int = 2
+    loop_agree_m: float = 0.05
+    loop_agree_deg: float = 1.0
+    loop_min_correction_m: float = 0.02
+    loop_min_correction_deg: float = 0.3
+    # relocalization: lost frames query the database; lost this long without a place: reset
+    relocalize_max_s: float = 10.0
+    # a new segment (after a reset) is merged into the frame of an earlier one it recognises
+    merge: bool = True
+
+
+@dataclass(frozen=True)
 class OutputConfig:
     landmarks_every_n_keyframes: int = 1  # /slam/landmarks rate
     draw_features: bool = True  # tracked features on the cam0 image (annotations)
@@ -137,6 +170,7 @@ class RunConfig:
     backend: BackendConfig = field(default_factory=BackendConfig)
     health: HealthConfig = field(default_factory=HealthConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    places: PlacesConfig = field(default_factory=PlacesConfig)
     frontend: FrontendConfig = field(default_factory=FrontendConfig)
 
     @property
@@ -242,6 +276,19 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
             "max_landmarks_per_keyframe_no_imu",
             "vo_bridge_rot_sigma",
             "vo_bridge_pos_sigma",
+            "place_rot_sigma",
+            "place_pos_sigma",
+        ),
+        "places": (
+            "candidates",
+            "ratio",
+            "min_inliers",
+            "pnp_reprojection_px",
+            "pnp_iterations",
+            "loop_consistency",
+            "loop_agree_m",
+            "loop_agree_deg",
+            "relocalize_max_s",
         ),
         "health": (
             "max_speed",
@@ -268,6 +315,7 @@ def config_from_dict(data: Any, origin: str = "<config>") -> RunConfig:
         "backend": BackendConfig,
         "health": HealthConfig,
         "output": OutputConfig,
+        "places": PlacesConfig,
         "frontend": FrontendConfig,
     }
     known = ["mode", *sections]

@@ -28,11 +28,10 @@ starts a new segment.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import B, L, V, X
+from gtsam.symbol_shorthand import B, V, X
 
 from eurocslam.backend.factors import ImuModel, StereoModel, pose
 from eurocslam.backend.final_batch import (
@@ -43,26 +42,15 @@ from eurocslam.backend.final_batch import (
 )
 from eurocslam.backend.initializer import InitialState
 from eurocslam.backend.landmarks import LandmarkKeys, landmark_indices
+from eurocslam.backend.observations import StereoAdded, StereoObservations
+from eurocslam.backend.pose_graph import LoopEdge, spread_loops
 from eurocslam.backend.preintegration import bias, integrate
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate, SegmentSolution
-from eurocslam.camera import RectifiedStereo, bucket_select
+from eurocslam.camera import RectifiedStereo
 from eurocslam.config import RunConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
 from eurocslam.geometry import F64, inv_T
-
-
-@dataclass(frozen=True)
-class _StereoAdded:
-    """What `_add_stereo` put into a keyframe's graph: the factors the global graph takes
-    instead (by index in the graph: those of landmarks whose smoother key is not their first),
-    priors for the smoother alone (re-found landmarks anchored at their last position), the
-    number of stereo factors and of new landmarks."""
-
-    subst: dict[int, gtsam.NonlinearFactor]
-    anchors: list[gtsam.NonlinearFactor]
-    n_factors: int
-    n_new: int
 
 
 class KeyframeEstimator:
@@ -90,12 +78,17 @@ class KeyframeEstimator:
         self._t0_ns = 0
         self._state: NavEstimate | None = None
         self._lms = LandmarkKeys()
+        self._obs = StereoObservations(cfg.backend, self._imu is not None, self._stereo, self._lms)
         self._seg = SegmentGraph()
         self._pim: gtsam.PreintegratedCombinedMeasurements | None = None
         self._pim_t_ns = 0
         self._pim_ok = True
         self._kf_estimates: dict[int, NavEstimate] = {}  # keyframe index -> smoothed estimate
         self._window: list[int] = []  # keyframe indices still in the smoother
+        # loop closures: the edges found by place recognition, and for each keyframe where the
+        # estimate was moved (`reanchor`), its pose before (for the final batch's start)
+        self._loops: list[LoopEdge] = []
+        self._before: dict[int, F64] = {}
 
     # ---- setup ----------------------------------------------------------------------------------
     def _make_smoother(self) -> None:
@@ -169,8 +162,17 @@ class KeyframeEstimator:
             np.asarray(init.ba, float),
         )
         self._reset_pim(init.t_ns, self._state)
-        added = self._add_stereo(
-            0, init.T_world_body, landmark_ids, stereo_uv, stereo_sigma, graph, values, stamps, 0.0
+        added = self._obs.add(
+            0,
+            init.T_world_body,
+            landmark_ids,
+            stereo_uv,
+            stereo_sigma,
+            graph,
+            values,
+            stamps,
+            0.0,
+            self._seg.final_only,
         )
         self._update(graph, values, stamps, added)
         return self._read_state(0, init.t_ns)
@@ -232,10 +234,14 @@ class KeyframeEstimator:
         stereo_uv: F64,
         T_world_body_guess: F64 | None = None,
         stereo_sigma: F64 | None = None,
+        pose_prior: F64 | None = None,
     ) -> KeyframeUpdate:
         """Add a keyframe at `t_ns` with its stereo observations; returns what the update
         changed. `stereo_sigma`: per observation, the pixel sigma in units of
-        `backend.stereo_sigma_px` (the keypoint's pyramid scale); None: 1 for all."""
+        `backend.stereo_sigma_px` (the keypoint's pyramid scale); None: 1 for all.
+        `pose_prior`: the keyframe's pose as place recognition found it in this map
+        (relocalization after a loss): it ties the keyframe to the map when nothing else does
+        (an IMU dropout, a new local map)."""
         st = self._state
         assert st is not None
         k = self._k + 1
@@ -263,11 +269,22 @@ class KeyframeEstimator:
         tk = self._t(t_ns)
         for key in (X(k), V(k), B(k)):
             stamps[key] = tk
-        added = self._add_stereo(
-            k, T_guess, landmark_ids, stereo_uv, stereo_sigma, graph, values, stamps, tk
+        added = self._obs.add(
+            k,
+            T_guess,
+            landmark_ids,
+            stereo_uv,
+            stereo_sigma,
+            graph,
+            values,
+            stamps,
+            tk,
+            self._seg.final_only,
         )
         n_known = added.n_factors - added.n_new
-        if not imu_link and n_known < self.cfg.backend.min_obs_without_imu:
+        if pose_prior is not None:
+            graph.add(gtsam.PriorFactorPose3(X(k), pose(pose_prior), self._place_noise()))
+        elif not imu_link and n_known < self.cfg.backend.min_obs_without_imu:
             if self._imu is not None or T_world_body_guess is None:
                 raise EstimatorFailure(
                     f"keyframe at t={t_ns} ns sees {n_known} mapped landmarks and has no IMU "
@@ -290,6 +307,69 @@ class KeyframeEstimator:
         update = self._read_state(k, t_ns)
         self._reset_pim(t_ns, update.nav)
         return update
+
+    def _place_noise(self) -> gtsam.noiseModel.Base:
+        b = self.cfg.backend
+        return gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([b.place_rot_sigma] * 3 + [b.place_pos_sigma] * 3)
+        )
+
+    # ---- loop closure ---------------------------------------------------------------------------
+    def reanchor(self, D: F64, loop: LoopEdge | None = None) -> KeyframeUpdate:
+        """Move the estimate at the latest keyframe by `D` (corrected world <- drifted world),
+        as a loop closure found it: a new smoother starts at the moved state (its pose, velocity
+        and biases held by priors), the landmarks it held are moved with it, and the segment's
+        graph keeps everything before plus the loop edge (`loop`, when its keyframe is in this
+        segment) for the final batch, which starts from the keyframes spread over the loop
+        (`pose_graph.spread_loops`)."""
+        st = self._state
+        assert st is not None
+        k = self._k
+        self._before.setdefault(k, st.T_world_body)
+        T = D @ st.T_world_body
+        v = D[:3, :3] @ st.v_world
+        moved = NavEstimate(st.t_ns, T, v, st.bg, st.ba)
+        c = self.cfg.init
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        graph.add(gtsam.PriorFactorPose3(X(k), pose(T), self._place_noise()))
+        graph.add(
+            gtsam.PriorFactorVector(
+                V(k), v, gtsam.noiseModel.Isotropic.Sigma(3, c.prior_vel_sigma_dynamic)
+            )
+        )
+        b = bias(st.bg, st.ba)
+        graph.add(
+            gtsam.PriorFactorConstantBias(
+                B(k),
+                b,
+                gtsam.noiseModel.Diagonal.Sigmas(
+                    np.array([c.prior_accel_bias_sigma] * 3 + [c.prior_gyro_bias_sigma] * 3)
+                ),
+            )
+        )
+        values.insert(X(k), pose(T))
+        values.insert(V(k), v)
+        values.insert(B(k), b)
+        tk = self._t(st.t_ns)
+        stamps = {X(k): tk, V(k): tk, B(k): tk}
+        # the old smoother's landmarks come back under new keys, anchored where they are now
+        lms = self._lms
+        act = np.nonzero(lms.active[: lms.n])[0]
+        lms.pos[act] = lms.pos[act] @ D[:3, :3].T + D[:3, 3]
+        lms.active[:] = False
+        if loop is not None:
+            self._loops.append(loop)
+            self._seg.graph.add(
+                gtsam.BetweenFactorPose3(
+                    X(loop.k_cand), X(loop.k_query), pose(loop.T_cand_query), self._place_noise()
+                )
+            )
+        self._make_smoother()
+        self._window = []
+        self._update_smoother(graph, values, stamps)
+        self._state = moved
+        return self._read_state(k, st.t_ns)
 
     def _add_loose_link(self, k: int, dt: float, graph: gtsam.NonlinearFactorGraph) -> None:
         """No usable IMU between k-1 and k: bias random walk and a loose velocity link (vision
@@ -319,114 +399,13 @@ class KeyframeEstimator:
                 )
             )
 
-    def _add_stereo(
-        self,
-        k: int,
-        T_world_body: F64,
-        landmark_ids: np.ndarray,
-        stereo_uv: F64,
-        stereo_sigma: F64 | None,
-        graph: gtsam.NonlinearFactorGraph,
-        values: gtsam.Values,
-        stamps: dict[int, float],
-        tk: float,
-    ) -> _StereoAdded:
-        """Stereo factors into `graph`; see `_StereoAdded` for what else comes back."""
-        b = self.cfg.backend
-        st = self._stereo.geometry
-        lms = self._lms
-        ids = np.asarray(landmark_ids, dtype=np.int64)
-        uv = np.asarray(stereo_uv, dtype=np.float64).reshape(-1, 3)
-        scale = (
-            np.ones(len(uv))
-            if stereo_sigma is None or len(stereo_sigma) != len(uv)
-            else np.round(np.asarray(stereo_sigma, dtype=np.float64), 3)
-        )
-        # a landmark the smoother let go and the tracker re-found (map reuse) is anchored at its
-        # last smoothed position: the online estimate stays in the frame of the map it returns
-        # to instead of drifting away from it. The smoother alone takes these priors; the final
-        # batch has the landmark's observations then and now on one variable instead
-        anchor = (
-            gtsam.noiseModel.Isotropic.Sigma(3, b.refound_prior_sigma_m)
-            if b.refound_prior_sigma_m > 0
-            else None
-        )
-        anchors: list[gtsam.NonlinearFactor] = []
-        disp = uv[:, 0] - uv[:, 1]
-        ok = np.isfinite(uv).all(axis=1) & (disp >= b.min_disparity_px)
-        depth = np.where(ok, st.fx * st.baseline / np.where(ok, disp, 1.0), np.inf)
-        idx = np.nonzero(ok)[0]
-        cap = b.max_landmarks_per_keyframe if self._imu else b.max_landmarks_per_keyframe_no_imu
-        final_cap = max(cap, b.final_max_landmarks_per_keyframe) if b.final_batch else cap
-        extra = idx[:0]
-        if idx.size > cap:
-            # spread over the image (4 x 3 cells, round-robin), in each cell landmarks already
-            # in the graph first, then the nearest: the nearest alone can crowd one region
-            known = np.array([lms.is_active(int(ids[i])) for i in idx], dtype=bool)
-            priority = np.where(known, 1e6, 0.0) - depth[idx]
-            pick = bucket_select(uv[idx][:, [0, 2]], priority, cap, st.width, st.height, 4, 3)
-            rest = np.setdiff1d(np.arange(idx.size), pick)
-            if final_cap > cap:  # the final batch's share, picked the same way from the rest
-                more = bucket_select(
-                    uv[idx[rest]][:, [0, 2]],
-                    priority[rest],
-                    final_cap - cap,
-                    st.width,
-                    st.height,
-                    4,
-                    3,
-                )
-                extra = idx[rest[more]]
-            idx = idx[pick]
-        T_world_rect0 = np.asarray(T_world_body) @ st.T_body_rect0
-
-        def world_point(i: int) -> F64:
-            z = depth[i]
-            Xc = np.array([(uv[i, 0] - st.cx) * z / st.fx, (uv[i, 2] - st.cy) * z / st.fy, z])
-            return T_world_rect0[:3, :3] @ Xc + T_world_rect0[:3, 3]
-
-        n_new = 0
-        subst: dict[int, gtsam.NonlinearFactor] = {}
-        for i in idx.tolist():
-            fid = int(ids[i])
-            key_i = lms.key_of.get(fid)
-            if key_i is None or not lms.active[key_i]:
-                old = key_i
-                key_i = lms.new_key(fid)
-                Xw = world_point(i)
-                values.insert(L(key_i), gtsam.Point3(*Xw))
-                lms.pos[key_i] = Xw
-                n_new += 1
-                if anchor is not None and old is not None and lms.smoothed[old]:
-                    anchors.append(gtsam.PriorFactorPoint3(L(key_i), lms.pos[old], anchor))
-            stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
-            obs = (uv[i, 0], uv[i, 1], uv[i, 2], float(scale[i]))
-            gkey = int(lms.gkey[key_i])
-            lms.nobs[gkey] += 1
-            if gkey != key_i:
-                subst[graph.size()] = self._stereo.factor(k, gkey, *obs)
-            graph.add(self._stereo.factor(k, key_i, *obs))
-        # beyond the smoother's cap: observations for the final batch alone. A landmark not yet
-        # known gets a key that the smoother never holds (it re-keys it if it picks it later)
-        for i in extra.tolist():
-            fid = int(ids[i])
-            key_i = lms.key_of.get(fid)
-            if key_i is None:
-                key_i = lms.new_key(fid)
-                lms.active[key_i] = False
-                lms.pos[key_i] = world_point(i)
-            gkey = int(lms.gkey[key_i])
-            lms.nobs[gkey] += 1
-            self._seg.final_only.append((k, gkey, uv[i, 0], uv[i, 1], uv[i, 2], scale[i]))
-        return _StereoAdded(subst, anchors, len(idx), n_new)
-
     # ---- smoother -------------------------------------------------------------------------------
     def _update(
         self,
         graph: gtsam.NonlinearFactorGraph,
         values: gtsam.Values,
         stamps: dict[int, float],
-        added: _StereoAdded | None = None,
+        added: StereoAdded | None = None,
     ) -> None:
         """One smoother update with `graph`; the segment's global graph takes the same factors
         (re-keyed where `added.subst` says) except the smoother-only anchors."""
@@ -436,6 +415,11 @@ class KeyframeEstimator:
         if added is not None:
             for f in added.anchors:
                 graph.add(f)
+        self._update_smoother(graph, values, stamps)
+
+    def _update_smoother(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]
+    ) -> None:
         try:
             if self._smoother is not None:
                 ts = gtsam.FixedLagSmootherKeyTimestampMap()
@@ -493,7 +477,10 @@ class KeyframeEstimator:
 
     # ---- the end of the segment ----------------------------------------------------------------
     def final_batch(self) -> FinalBatchResult:
-        """One Levenberg-Marquardt over every factor of the segment (`final_batch.py`)."""
+        """One Levenberg-Marquardt over every factor of the segment (`final_batch.py`), started
+        from the keyframes spread over the loops closed online, if any."""
+        if self._loops or self._before:
+            self._spread_loops()
         b = self.cfg.backend
         return final_batch(
             self._seg,
@@ -504,6 +491,26 @@ class KeyframeEstimator:
             b.final_imu_reweight_above,
             b.final_batch_max_iterations,
         )
+
+    def _spread_loops(self) -> None:
+        """Move every keyframe's pose and velocity, and every landmark with the keyframe that
+        first saw it, by the pose graph's correction of that keyframe."""
+        b = self.cfg.backend
+        old = {k: e.T_world_body for k, e in self._kf_estimates.items()}
+        new = spread_loops(old, self._before, self._loops, b.place_rot_sigma, b.place_pos_sigma)
+        corr = {k: new[k] @ inv_T(old[k]) for k in old}
+        for k, e in self._kf_estimates.items():
+            R = corr[k][:3, :3]
+            self._kf_estimates[k] = NavEstimate(e.t_ns, new[k], R @ e.v_world, e.bg, e.ba)
+            self._seg.values[X(k)] = pose(new[k])
+            if V(k) in self._seg.values:
+                self._seg.values[V(k)] = R @ np.asarray(self._seg.values[V(k)])
+        lms = self._lms
+        for key in range(lms.n):
+            C = corr.get(int(lms.first_kf[key]))
+            if C is not None:
+                lms.pos[key] = C[:3, :3] @ lms.pos[key] + C[:3, 3]
+        self._loops, self._before = [], {}
 
     def imu_bridge(
         self, states: dict[int, NavEstimate], k: int, t_ns: list[int]

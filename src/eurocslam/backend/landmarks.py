@@ -35,6 +35,7 @@ class LandmarkKeys:
         self.fid = np.zeros(1024, np.int64)
         self.active = np.zeros(1024, bool)
         self.smoothed = np.zeros(1024, bool)  # the key was in the smoother window (pos smoothed)
+        self.first_kf = np.zeros(1024, np.int64)  # the keyframe that first saw the landmark
         self.gkey = np.zeros(1024, np.int64)  # the landmark's key in the global graph
         self.nobs = np.zeros(1024, np.int64)  # per global key: observations in the segment
 
@@ -42,9 +43,9 @@ class LandmarkKeys:
         k = self.key_of.get(fid)
         return k is not None and bool(self.active[k])
 
-    def new_key(self, fid: int) -> int:
-        """A fresh key index for frontend landmark `fid` (active); its global key is its first
-        key's."""
+    def new_key(self, fid: int, kf: int) -> int:
+        """A fresh key index for frontend landmark `fid` (active), seen at keyframe `kf`; its
+        global key is its first key's."""
         key_i = self.n
         self.n += 1
         if key_i >= self.pos.shape[0]:
@@ -55,8 +56,10 @@ class LandmarkKeys:
             self.nobs = np.pad(self.nobs, (0, n - self.nobs.size))  # zeros
             self.active = np.pad(self.active, (0, n - self.active.size))  # False
             self.smoothed = np.pad(self.smoothed, (0, n - self.smoothed.size))
+            self.first_kf = np.resize(self.first_kf, n)
         old = self.key_of.get(fid)
         self.gkey[key_i] = key_i if old is None else self.gkey[old]
+        self.first_kf[key_i] = kf
         self.key_of[fid] = key_i
         self.fid[key_i] = fid
         self.active[key_i] = True

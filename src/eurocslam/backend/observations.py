@@ -1,0 +1,150 @@
+"""A keyframe's stereo observations into the factor graph: which ones (the cap per keyframe, spread
+over the image), under which landmark keys, and the anchors of re-found landmarks.
+
+The smoother takes at most `backend.max_landmarks_per_keyframe` observations per keyframe (its
+update cost grows fast with them), spread over the image (4 x 3 cells, round-robin), in each cell
+landmarks already in the graph first, then the nearest; the final batch takes up to
+`final_max_landmarks_per_keyframe`, the rest picked the same way and kept for it alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L
+
+from eurocslam.backend.factors import StereoModel
+from eurocslam.backend.landmarks import LandmarkKeys
+from eurocslam.camera import bucket_select
+from eurocslam.config import BackendConfig
+from eurocslam.geometry import F64
+
+
+@dataclass(frozen=True)
+class StereoAdded:
+    """What `StereoObservations.add` put into a keyframe's graph: the factors the global graph takes
+    instead (by index in the graph: those of landmarks whose smoother key is not their first),
+    priors for the smoother alone (re-found landmarks anchored at their last position), the
+    number of stereo factors and of new landmarks."""
+
+    subst: dict[int, gtsam.NonlinearFactor]
+    anchors: list[gtsam.NonlinearFactor]
+    n_factors: int
+    n_new: int
+
+
+class StereoObservations:
+    """Stereo observations of keyframes -> factors on landmark keys."""
+
+    def __init__(
+        self, cfg: BackendConfig, inertial: bool, stereo: StereoModel, lms: LandmarkKeys
+    ) -> None:
+        self.cfg = cfg
+        self.inertial = inertial
+        self.stereo = stereo
+        self.lms = lms
+
+    def add(
+        self,
+        k: int,
+        T_world_body: F64,
+        landmark_ids: np.ndarray,
+        stereo_uv: F64,
+        stereo_sigma: F64 | None,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        stamps: dict[int, float],
+        tk: float,
+        final_only: list[tuple[int, int, float, float, float, float]],
+    ) -> StereoAdded:
+        """Stereo factors of keyframe `k` into `graph` (new landmarks into `values` and
+        `stamps`), observations beyond the smoother's cap into `final_only`."""
+        b = self.cfg
+        st = self.stereo.geometry
+        lms = self.lms
+        ids = np.asarray(landmark_ids, dtype=np.int64)
+        uv = np.asarray(stereo_uv, dtype=np.float64).reshape(-1, 3)
+        scale = (
+            np.ones(len(uv))
+            if stereo_sigma is None or len(stereo_sigma) != len(uv)
+            else np.round(np.asarray(stereo_sigma, dtype=np.float64), 3)
+        )
+        # a landmark the smoother let go and the tracker re-found (map reuse) is anchored at its
+        # last smoothed position: the online estimate stays in the frame of the map it returns
+        # to instead of drifting away from it. The smoother alone takes these priors; the final
+        # batch has the landmark's observations then and now on one variable instead
+        anchor = (
+            gtsam.noiseModel.Isotropic.Sigma(3, b.refound_prior_sigma_m)
+            if b.refound_prior_sigma_m > 0
+            else None
+        )
+        anchors: list[gtsam.NonlinearFactor] = []
+        disp = uv[:, 0] - uv[:, 1]
+        ok = np.isfinite(uv).all(axis=1) & (disp >= b.min_disparity_px)
+        depth = np.where(ok, st.fx * st.baseline / np.where(ok, disp, 1.0), np.inf)
+        idx = np.nonzero(ok)[0]
+        cap = b.max_landmarks_per_keyframe if self.inertial else b.max_landmarks_per_keyframe_no_imu
+        final_cap = max(cap, b.final_max_landmarks_per_keyframe) if b.final_batch else cap
+        extra = idx[:0]
+        if idx.size > cap:
+            # spread over the image (4 x 3 cells, round-robin), in each cell landmarks already
+            # in the graph first, then the nearest: the nearest alone can crowd one region
+            known = np.array([lms.is_active(int(ids[i])) for i in idx], dtype=bool)
+            priority = np.where(known, 1e6, 0.0) - depth[idx]
+            pick = bucket_select(uv[idx][:, [0, 2]], priority, cap, st.width, st.height, 4, 3)
+            rest = np.setdiff1d(np.arange(idx.size), pick)
+            if final_cap > cap:  # the final batch's share, picked the same way from the rest
+                more = bucket_select(
+                    uv[idx[rest]][:, [0, 2]],
+                    priority[rest],
+                    final_cap - cap,
+                    st.width,
+                    st.height,
+                    4,
+                    3,
+                )
+                extra = idx[rest[more]]
+            idx = idx[pick]
+        T_world_rect0 = np.asarray(T_world_body) @ st.T_body_rect0
+
+        def world_point(i: int) -> F64:
+            z = depth[i]
+            Xc = np.array([(uv[i, 0] - st.cx) * z / st.fx, (uv[i, 2] - st.cy) * z / st.fy, z])
+            return T_world_rect0[:3, :3] @ Xc + T_world_rect0[:3, 3]
+
+        n_new = 0
+        subst: dict[int, gtsam.NonlinearFactor] = {}
+        for i in idx.tolist():
+            fid = int(ids[i])
+            key_i = lms.key_of.get(fid)
+            if key_i is None or not lms.active[key_i]:
+                old = key_i
+                key_i = lms.new_key(fid, k)
+                Xw = world_point(i)
+                values.insert(L(key_i), gtsam.Point3(*Xw))
+                lms.pos[key_i] = Xw
+                n_new += 1
+                if anchor is not None and old is not None and lms.smoothed[old]:
+                    anchors.append(gtsam.PriorFactorPoint3(L(key_i), lms.pos[old], anchor))
+            stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
+            obs = (uv[i, 0], uv[i, 1], uv[i, 2], float(scale[i]))
+            gkey = int(lms.gkey[key_i])
+            lms.nobs[gkey] += 1
+            if gkey != key_i:
+                subst[graph.size()] = self.stereo.factor(k, gkey, *obs)
+            graph.add(self.stereo.factor(k, key_i, *obs))
+        # beyond the smoother's cap: observations for the final batch alone. A landmark not yet
+        # known gets a key that the smoother never holds (it re-keys it if it picks it later)
+        for i in extra.tolist():
+            fid = int(ids[i])
+            key_i = lms.key_of.get(fid)
+            if key_i is None:
+                key_i = lms.new_key(fid, k)
+                lms.active[key_i] = False
+                lms.pos[key_i] = world_point(i)
+            gkey = int(lms.gkey[key_i])
+            lms.nobs[gkey] += 1
+            final_only.append((k, gkey, uv[i, 0], uv[i, 1], uv[i, 2], scale[i]))
+        return StereoAdded(subst, anchors, len(idx), n_new)
