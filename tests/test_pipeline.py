@@ -182,7 +182,8 @@ def test_reset_starts_a_new_segment(synth_seq: Path, tmp_path: Path) -> None:
     from eurocslam.io.trajectory_io import read_tum
     from eurocslam.runner import write_outputs
 
-    cfg = config_from_dict({"health": {"max_lost_s": 0.2}})
+    # without place recognition (with it, the run finds its map again: the test below)
+    cfg = config_from_dict({"health": {"max_lost_s": 0.2}, "places": {"enabled": False}})
     seq = FaultySource(open_sequence(synth_seq), black=set(range(30, 38)))
     res = SlamPipeline(seq, cfg).run()  # type: ignore[arg-type]
     s = res.summary
@@ -195,6 +196,21 @@ def test_reset_starts_a_new_segment(synth_seq: Path, tmp_path: Path) -> None:
     assert tum.has_segments
     # each segment is evaluated in its own frame
     assert _ate(res, _gt(seq)) < 0.05
+
+
+def test_a_loss_finds_the_map_again_instead_of_resetting(synth_seq: Path) -> None:
+    """Blind for longer than the prediction is worth: the frames get no pose (no guess), the
+    first frame with images is found in the map again, and the run goes on in one segment."""
+    from eurocslam.config import config_from_dict
+
+    cfg = config_from_dict({"health": {"max_lost_s": 0.2}})
+    seq = FaultySource(open_sequence(synth_seq), black=set(range(30, 38)))
+    res = SlamPipeline(seq, cfg).run()  # type: ignore[arg-type]
+    s = res.summary
+    assert not s.resets and s.segments == 1, s.lines()
+    assert s.state_frames["LOST"] == 8
+    assert s.frames_with_pose >= s.frames - 8 + 4  # the first black frames are bridged
+    assert _ate(res, _gt(seq)) < 0.02
 
 
 @pytest.mark.slow

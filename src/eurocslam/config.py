@@ -147,8 +147,8 @@ class PlacesConfig:
     loop_consistency: int = 2
     loop_agree_m: float = 0.05
     loop_agree_deg: float = 1.0
-    loop_min_correction_m: float = 0.02
-    loop_min_correction_deg: float = 0.3
+    loop_min_correction_m: float = 0.1
+    loop_min_correction_deg: float = 1.0
     # relocalization: lost frames query the database; lost this long without a place: reset
     relocalize_max_s: float = 10.0
     # a new segment (after a reset) is merged into the frame of an earlier one it recognises

@@ -37,6 +37,14 @@ class SlamError(EurocSlamError):
     """The estimator hit a state it cannot recover from."""
 
 
+class PlaceRecognitionError(EurocSlamError):
+    """Place recognition (vocabulary, keyframe database) cannot work with what it was given."""
+
+
+class VocabularyError(PlaceRecognitionError):
+    """A vocabulary file is missing, corrupt, truncated, of another kind or another version."""
+
+
 def where(path: object, row: int | None = None, key: str | None = None) -> str:
     """Format a location for error messages: 'path:row (key)'."""
     s = str(path)

@@ -32,6 +32,7 @@ import math
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, V, X
+from numpy.typing import NDArray
 
 from eurocslam.backend.factors import ImuModel, StereoModel, pose
 from eurocslam.backend.final_batch import (
@@ -283,7 +284,11 @@ class KeyframeEstimator:
         )
         n_known = added.n_factors - added.n_new
         if pose_prior is not None:
-            graph.add(gtsam.PriorFactorPose3(X(k), pose(pose_prior), self._place_noise()))
+            # the smoother holds the keyframe where the map puts it; the final batch only
+            # loosely (the online map has drifted; the landmarks seen again tie it precisely)
+            T_prior = pose(pose_prior)
+            added.anchors.append(gtsam.PriorFactorPose3(X(k), T_prior, self._place_noise()))
+            graph.add(gtsam.PriorFactorPose3(X(k), T_prior, self._place_noise(25.0)))
         elif not imu_link and n_known < self.cfg.backend.min_obs_without_imu:
             if self._imu is not None or T_world_body_guess is None:
                 raise EstimatorFailure(
@@ -308,10 +313,10 @@ class KeyframeEstimator:
         self._reset_pim(t_ns, update.nav)
         return update
 
-    def _place_noise(self) -> gtsam.noiseModel.Base:
+    def _place_noise(self, scale: float = 1.0) -> gtsam.noiseModel.Base:
         b = self.cfg.backend
         return gtsam.noiseModel.Diagonal.Sigmas(
-            np.array([b.place_rot_sigma] * 3 + [b.place_pos_sigma] * 3)
+            scale * np.array([b.place_rot_sigma] * 3 + [b.place_pos_sigma] * 3)
         )
 
     # ---- loop closure ---------------------------------------------------------------------------
@@ -528,7 +533,8 @@ class KeyframeEstimator:
         (their own tracking is noisier than the preintegration over < 0.5 s)."""
         if not self.cfg.backend.final_batch:
             kf = {k: e.T_world_body for k, e in self._kf_estimates.items()}
-            return SegmentSolution(kf, self._lms.in_window()[1].reshape(-1, 3), {}, None)
+            ids, xyz = self._lms.in_window()
+            return SegmentSolution(kf, xyz.reshape(-1, 3), ids, {}, None)
         res = self.final_batch()
         groups: dict[int, list[int]] = {}
         kf_t = set(self._seg.kf_times)
@@ -541,4 +547,14 @@ class KeyframeEstimator:
             if Ts is not None:
                 bridged.update(zip(idx, Ts, strict=True))
         lm = np.array(list(res.landmarks.values())).reshape(-1, 3)
-        return SegmentSolution(res.poses, lm, bridged, res.imu_check)
+        ids = self._lms.fid[np.array(list(res.landmarks), dtype=np.int64)]
+        return SegmentSolution(res.poses, lm, ids, bridged, res.imu_check)
+
+    def landmark_positions(self, ids: NDArray[np.int64]) -> F64:
+        """The latest estimates (N, 3) of landmarks by frontend id (NaN: unknown here)."""
+        lms = self._lms
+        keys = np.array([lms.key_of.get(int(i), -1) for i in ids], dtype=np.int64)
+        out = np.full((len(keys), 3), np.nan)
+        ok = keys >= 0
+        out[ok] = lms.pos[keys[ok]]
+        return out

@@ -43,6 +43,11 @@ class LandmarkKeys:
         k = self.key_of.get(fid)
         return k is not None and bool(self.active[k])
 
+    def was_smoothed(self, fid: int) -> bool:
+        """The landmark has been in the smoother window (under its current key)."""
+        k = self.key_of.get(fid)
+        return k is not None and bool(self.smoothed[k])
+
     def new_key(self, fid: int, kf: int) -> int:
         """A fresh key index for frontend landmark `fid` (active), seen at keyframe `kf`; its
         global key is its first key's."""

@@ -89,10 +89,13 @@ class StereoObservations:
         final_cap = max(cap, b.final_max_landmarks_per_keyframe) if b.final_batch else cap
         extra = idx[:0]
         if idx.size > cap:
-            # spread over the image (4 x 3 cells, round-robin), in each cell landmarks already
-            # in the graph first, then the nearest: the nearest alone can crowd one region
-            known = np.array([lms.is_active(int(ids[i])) for i in idx], dtype=bool)
-            priority = np.where(known, 1e6, 0.0) - depth[idx]
+            # spread over the image (4 x 3 cells, round-robin), in each cell landmarks the
+            # smoother holds first, then those it held before (seen again after a while or a
+            # loss: they tie now to then), then the nearest: the nearest alone can crowd one
+            # region
+            active = np.array([lms.is_active(int(ids[i])) for i in idx], dtype=bool)
+            seen = np.array([lms.was_smoothed(int(ids[i])) for i in idx], dtype=bool)
+            priority = np.where(active, 2e6, np.where(seen, 1e6, 0.0)) - depth[idx]
             pick = bucket_select(uv[idx][:, [0, 2]], priority, cap, st.width, st.height, 4, 3)
             rest = np.setdiff1d(np.arange(idx.size), pick)
             if final_cap > cap:  # the final batch's share, picked the same way from the rest

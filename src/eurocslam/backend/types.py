@@ -54,5 +54,6 @@ class SegmentSolution:
 
     keyframes: dict[int, F64]  # keyframe index -> T_world_body
     landmarks: F64  # (M, 3)
+    landmark_ids: NDArray[np.int64]  # (M,) their frontend ids
     frames: dict[int, F64]  # frame index (as given to `finish`) -> T_world_body
     imu_check: ImuCheck | None

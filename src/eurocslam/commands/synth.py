@@ -85,6 +85,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="turn every realism switch off (exact images and IMU, zero biases)",
     )
+    p.add_argument(
+        "--blackout",
+        metavar="START:END",
+        help="both cameras black and no IMU rows from START to END seconds after the first "
+        "frame (a sensor blackout; the ground truth goes on)",
+    )
     p.add_argument("--tiny", action="store_true", help="a 2 s sequence (tests, quick looks)")
     p.add_argument(
         "--workers",
@@ -100,11 +106,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def spec_from_args(args: argparse.Namespace):  # -> SynthSpec
+    from eurocslam.errors import DatasetError
     from eurocslam.synth.sequence import TINY_DURATION_S, SynthSpec
 
     duration = args.duration
     if args.tiny and duration is None:
         duration = TINY_DURATION_S
+    blackout = None
+    if args.blackout:
+        try:
+            a, b = (float(x) for x in args.blackout.split(":"))
+        except ValueError:
+            raise DatasetError(f"--blackout {args.blackout}: expected START:END seconds") from None
+        if not 0 <= a < b:
+            raise DatasetError(f"--blackout {args.blackout}: need 0 <= START < END")
+        blackout = (a, b)
     spec = SynthSpec(
         duration_s=duration,
         seed=args.seed,
@@ -113,6 +129,7 @@ def spec_from_args(args: argparse.Namespace):  # -> SynthSpec
         start_s=args.start,
         end_s=args.end,
         calib=args.calib,
+        blackout=blackout,
         **{field: getattr(args, field) for _, field, _ in _SWITCHES},
     )
     return spec.ideal() if args.ideal else spec

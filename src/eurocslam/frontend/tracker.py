@@ -129,11 +129,14 @@ class StereoTracker:
         ff: FrameFeatures,
         T_world_body_pred: F64 | None = None,
         keyframe_allowed: bool = True,
+        may_restart: bool = True,
     ) -> FrontendResult:
         """Track one frame. `T_world_body_pred`: the caller's prediction (the IMU's), else the
         constant-velocity model's; with `motion_prior: false`, neither: the last pose.
         `keyframe_allowed`: the caller would take this frame as a keyframe (the backend's
-        minimum interval has passed); otherwise it is not made one (no new landmarks)."""
+        minimum interval has passed); otherwise it is not made one (no new landmarks).
+        `may_restart`: after `reinit_after_lost_frames` lost frames, start a new map at the
+        prediction (false while the caller relocalizes: the prediction is worthless then)."""
         self._t_ns = ff.t_ns
         timings = dict(ff.timings_ms)
         t0 = time.perf_counter()
@@ -155,7 +158,7 @@ class StereoTracker:
         )
         if T_world_body is None:
             self._lost_count += 1
-            if self._lost_count >= self.config.reinit_after_lost_frames:
+            if may_restart and self._lost_count >= self.config.reinit_after_lost_frames:
                 # re-create the map from stereo at the best available pose
                 return self._initialize(ff, pred, timings, t0, reinit=True)
             return self._result(ff, TrackingState.LOST, None, timings, t0, track_path="lost")
@@ -199,6 +202,13 @@ class StereoTracker:
             n_reused=int(old_kps.size) if is_kf else 0,
             track_path=path,
         )
+
+    def restart_map(self, ff: FrameFeatures, T_world_body: F64) -> FrontendResult:
+        """A new local map from this frame's stereo points at `T_world_body` (a pose found by
+        relocalization): an INIT result, or LOST when the frame has too few stereo points."""
+        self._t_ns = ff.t_ns
+        t0 = time.perf_counter()
+        return self._initialize(ff, rigid(T_world_body), dict(ff.timings_ms), t0, reinit=True)
 
     # ---- internals --------------------------------------------------------------------------
     def _stereo_uv(self, ff: FrameFeatures, kps: NDArray[np.intp]) -> F64:
@@ -523,4 +533,6 @@ class StereoTracker:
                 if obs_kps is None
                 else self.scale[np.clip(ff.left.octave[obs_kps], 0, self.scale.size - 1)]
             ),
+            descriptors=(np.zeros((0, 32), np.uint8) if obs_kps is None else ff.left.desc[obs_kps]),
+            octaves=np.zeros(0, np.int32) if obs_kps is None else ff.left.octave[obs_kps],
         )

@@ -50,6 +50,10 @@ class FrontendResult:
     # (N,) pixel standard deviation of each stereo_uv row: the ORB octave scale of its keypoint
     # (1.0 at full resolution, 1.2**k at pyramid level k); multiply by a base sigma for factors
     stereo_sigma: F64 = field(default_factory=lambda: np.zeros(0))
+    # (N, 32) ORB descriptors and (N,) pyramid octaves of the stereo_uv rows' keypoints (place
+    # recognition files keyframes by them)
+    descriptors: NDArray[np.uint8] = field(default_factory=lambda: np.zeros((0, 32), np.uint8))
+    octaves: NDArray[np.int32] = field(default_factory=lambda: np.zeros(0, np.int32))
 
 
 @dataclass(frozen=True)

@@ -14,6 +14,7 @@ from eurocslam.backend.types import NavEstimate
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.types import FrontendResult
 from eurocslam.geometry import F64
+from eurocslam.pipeline.places import PlaceEvent
 
 if TYPE_CHECKING:
     from eurocslam.pipeline.summary import RunSummary
@@ -54,6 +55,8 @@ class FrameOutput:
     # at keyframes: the segment's keyframe path and the smoother's landmarks (world, (N, 3))
     keyframe_path: KeyframePath | None = None
     landmarks: F64 | None = None
+    frame: int = 0  # the world frame of the poses (a segment index: its own, or where it merged)
+    places: tuple[PlaceEvent, ...] = ()  # loops, relocalizations, merges found at this frame
 
 
 class FrameObserver(Protocol):

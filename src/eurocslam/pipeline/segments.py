@@ -63,18 +63,23 @@ class FinalTrajectory:
     landmark_segment: np.ndarray
 
 
-def assemble(segments: list[Segment]) -> FinalTrajectory:
-    """The final trajectory of all segments in time order, and the map."""
+def assemble(
+    segments: list[Segment], frame_of: list[int], T_frame_seg: list[F64]
+) -> FinalTrajectory:
+    """The final trajectory of all segments in time order, and the map, each segment in its
+    world frame (`frame_of`: a segment merged into another's frame is moved there by
+    `T_frame_seg`, and carries that frame's id)."""
     ft, fT, fs, lm, ls = [], [], [], [], []
     for seg in segments:
         if not seg.records:
             continue
+        C = T_frame_seg[seg.index]
         for rec, T in zip(seg.records, seg.final_poses(), strict=True):
             ft.append(rec.t_ns)
-            fT.append(T)
-            fs.append(seg.index)
-        lm.append(seg.landmarks)
-        ls.append(np.full(len(seg.landmarks), seg.index, np.int64))
+            fT.append(C @ T)
+            fs.append(frame_of[seg.index])
+        lm.append(seg.landmarks @ C[:3, :3].T + C[:3, 3])
+        ls.append(np.full(len(seg.landmarks), frame_of[seg.index], np.int64))
     order = np.argsort(np.array(ft, dtype=np.int64), kind="stable")
     return FinalTrajectory(
         np.array(ft, dtype=np.int64)[order],

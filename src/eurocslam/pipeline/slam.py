@@ -4,25 +4,24 @@ Stages, each behind a typed record: extraction (`FeatureStream`: `StereoFrame` -
 `FrameFeatures`, in worker processes) -> tracking (`StereoTracker.track` -> `FrontendResult`;
 corrections go back as one `MapCorrection`) -> estimator (`KeyframeEstimator`: `KeyframeUpdate`
 per keyframe, `SegmentSolution` per segment) -> observers (`on_frame(frame, FrameOutput)`).
-The mode (stereo-inertial or visual-only) is the configuration's, resolved once.
+Place recognition (`PlaceStage`) sees every keyframe and every lost frame. The mode
+(stereo-inertial or visual-only) is the configuration's, resolved once.
 
 States (`PipelineState`):
 
-* **INIT**: no estimate yet (start, or after a reset). The initialisation kind is chosen from
-  the IMU around the current frame: *static* (still: attitude and gyro bias from the IMU mean,
-  the estimator starts at once) or *dynamic* (moving: the tracker runs as stereo VO for
-  `init.dynamic_window_s`, then VO and preintegrated IMU are aligned for gravity, velocity and
-  biases). Poses are output from the first frame on in both cases; during a dynamic window they
-  come from VO in a frame levelled by the mean accelerometer reading. Visual-only starts at
-  once, in `init`'s mounting attitude.
+* **INIT**: no estimate yet (start, or after a reset): `startup.py`.
 * **TRACKING**: per frame, the estimator predicts the pose from the latest keyframe state, the
   tracker tracks its local map from that prediction, keyframes go into the smoother (and the
   tracker adopts the smoothed pose and landmarks). The online pose of a frame is the smoothed
-  state for keyframes and the tracker's pose otherwise.
-* **LOST**: blank / missing images or failed tracking: the prediction bridges the frames.
-  Too long without vision (`health.max_lost_s`), an IMU dropout while blind, a smoother
-  failure, NaN, or out-of-bounds velocity/biases reset the estimator: the segment ends (final
-  batch) and a new one starts with a fresh initialisation.
+  state for keyframes and the tracker's pose otherwise. At each keyframe place recognition looks
+  for a loop (and corrects the estimate when the drift is large) and, in a segment started after
+  a reset, for a place of an earlier segment (then the segment joins that segment's world).
+* **LOST**: blank / missing images or failed tracking: the prediction bridges the frames while
+  it is worth something (`health.max_lost_s` with the IMU, `max_lost_s_no_imu` without or
+  across an IMU dropout); beyond, frames get no pose while every frame with images is matched
+  against the map by appearance (relocalization) for up to `places.relocalize_max_s`. A smoother
+  failure, NaN, out-of-bounds velocity/biases, or no relocalization in time reset the estimator:
+  the segment ends (final batch) and a new one starts with a fresh initialisation.
 """
 
 from __future__ import annotations
@@ -34,15 +33,7 @@ import numpy as np
 
 from eurocslam.backend.estimator import KeyframeEstimator
 from eurocslam.backend.health import Health, Verdict
-from eurocslam.backend.initializer import (
-    InitialState,
-    choose_mode,
-    dynamic_init,
-    gravity_aligned_rotation,
-    static_init,
-    static_window,
-)
-from eurocslam.backend.preintegration import make_params
+from eurocslam.backend.pose_graph import LoopEdge
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate
 from eurocslam.config import RunConfig, resolve_mode
 from eurocslam.dataset.types import SequenceSource, has_imu
@@ -52,6 +43,7 @@ from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState
 from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
 from eurocslam.memory import peak_rss_mb
+from eurocslam.pipeline.places import FrameBook, LoopFix, PlaceEvent, PlaceStage
 from eurocslam.pipeline.records import (
     FrameObserver,
     FrameOutput,
@@ -60,13 +52,11 @@ from eurocslam.pipeline.records import (
     RunResult,
 )
 from eurocslam.pipeline.segments import FrameRecord, Segment, assemble
+from eurocslam.pipeline.startup import Startup
 from eurocslam.pipeline.summary import RunSummary, cpu_seconds
 
-# an optical camera (x right, y down, z forward) held level, looking along world x (z up)
-R_WORLD_CAM_LEVEL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
-
-class SlamPipeline:
+class SlamPipeline(Startup):
     """Stereo-inertial or visual-only SLAM over a `SequenceSource` (`cfg.mode`; `auto` is
     resolved against the source's IMU)."""
 
@@ -86,6 +76,20 @@ class SlamPipeline:
         self.stereo = self.features.extractor.geometry
         self.health = Health(self.cfg.health, self.cfg.inertial)
         self.tracker = StereoTracker(self.features.extractor.rectifier, self.cfg.frontend)
+        self.frames = FrameBook()  # the world frame of each segment
+        self.places = (
+            PlaceStage.create(
+                self.cfg.places,
+                self.stereo,
+                self.tracker.scale,
+                self.stereo.fx * np.radians(self.cfg.frontend.track_radius_deg),
+                self.frames,
+                self._map_points,
+            )
+            if self.cfg.places.enabled
+            else None
+        )
+        self._events_out = 0  # place events already handed to observers
         self.state = PipelineState.INIT
         self.segments: list[Segment] = []
         self._new_segment()
@@ -95,7 +99,7 @@ class SlamPipeline:
         self._hint_T: F64 | None = None  # pose to restart from after a reset
         self._init_mode: str | None = None
         self._window: list[tuple[int, F64]] = []  # dynamic init: VO frames (t, T_world_body)
-        self._online: list[tuple[int, F64, int]] = []
+        self._online: list[tuple[int, F64, int]] = []  # (t, T in the segment's world, segment)
 
     # ---- segments -------------------------------------------------------------------------------
     @property
@@ -104,6 +108,7 @@ class SlamPipeline:
 
     def _new_segment(self) -> None:
         self.segments.append(Segment(len(self.segments)))
+        self.frames.new_segment()
         self.est = KeyframeEstimator(self.source.rig.imu, self.stereo, self.imu, self.cfg)
         self._nav: NavEstimate | None = None  # the latest keyframe's smoothed state
         self._kf_index = -1  # the latest keyframe's index in the segment
@@ -111,7 +116,8 @@ class SlamPipeline:
         self._kf_path: list[tuple[int, F64]] = []  # keyframes: time, latest smoothed pose
 
     def _finish_segment(self) -> None:
-        """Final batch over the segment's graph; the segment keeps the solution."""
+        """Final batch over the segment's graph; the segment keeps the solution (and place
+        recognition the keyframes' final poses)."""
         seg = self.segment
         if self._nav is None or not seg.records:
             return
@@ -121,6 +127,9 @@ class SlamPipeline:
             self.summary.imu_checks.append(seg.solution.imu_check)
         self.summary.add_time("final_batch", (time.perf_counter() - t0) * 1e3)
         self.summary.keyframes += len(seg.solution.keyframes)
+        if self.places is not None:
+            for k, T in seg.solution.keyframes.items():
+                self.places.update_pose(seg.index, k, T)
 
     def _reset(self, t_ns: int, reason: str, T_hint: F64 | None) -> None:
         self.summary.resets.append((t_ns, reason))
@@ -184,157 +193,29 @@ class SlamPipeline:
         s.state_frames[out.state.value] = s.state_frames.get(out.state.value, 0) + 1
         if out.T_world_body is not None:
             s.frames_with_pose += 1
-            self._online.append((out.t_ns, out.T_world_body, out.segment))
             self._last_pose = out.T_world_body
         return out
-
-    # ---- INIT -----------------------------------------------------------------------------------
-    def _step_init(self, ff: FrameFeatures) -> FrameOutput:
-        t = ff.t_ns
-        g = self.cfg.imu.gravity
-        if self._init_mode is None:
-            if not self.cfg.inertial:
-                self._init_mode = "visual"
-            else:
-                self._init_mode = choose_mode(self.imu, t, self.cfg.init, g)
-        seg = self.segment
-        if self._init_mode in ("static", "visual"):
-            if self._init_mode == "static":
-                try:
-                    init = static_init(self.imu, t, self.cfg.init, g)
-                except ValueError:
-                    self._init_mode = None
-                    return self._out(t, PipelineState.INIT, None, None)
-                if self._hint_T is not None:
-                    init = InitialState(
-                        t,
-                        make_T(init.T_world_body[:3, :3], self._hint_T[:3, 3]),
-                        init.v_world,
-                        init.bg,
-                        init.ba,
-                        "static",
-                    )
-            else:
-                T0 = (
-                    self._hint_T
-                    if self._hint_T is not None
-                    else make_T(self._visual_attitude(), np.zeros(3))
-                )
-                init = InitialState(t, T0, np.zeros(3), np.zeros(3), np.zeros(3), "visual")
-            fr = self.tracker.track(ff, init.T_world_body)
-            if fr.T_world_body is None:
-                return self._out(t, PipelineState.INIT, None, fr)
-            return self._start_estimator(init, fr)
-        # dynamic: stereo VO in a levelled frame, then align with the IMU
-        if not self._window:
-            R0 = self._levelled_attitude(t)
-            p0 = self._hint_T[:3, 3] if self._hint_T is not None else np.zeros(3)
-            fr = self.tracker.track(ff, make_T(R0, p0))
-        else:
-            fr = self.tracker.track(ff, None)
-        if fr.T_world_body is None:
-            return self._out(t, PipelineState.INIT, None, fr)
-        self._window.append((t, fr.T_world_body))
-        seg.records.append(FrameRecord(t, fr.T_world_body, -1))
-        span = (t - self._window[0][0]) * 1e-9
-        c = self.cfg.init
-        if span >= c.dynamic_window_s and len(self._window) >= c.dynamic_min_keyframes:
-            sel = self._window[::2] if len(self._window) > 30 else self._window
-            if sel[-1] is not self._window[-1]:
-                sel = [*sel, self._window[-1]]
-            try:
-                assert self.source.rig.imu is not None  # stereo-inertial
-                params = make_params(self.source.rig.imu, self.cfg.imu)
-                init = dynamic_init(params, self.imu, [w[0] for w in sel], [w[1] for w in sel], g)
-            except (ValueError, np.linalg.LinAlgError):
-                if span < 3 * c.dynamic_window_s:
-                    return self._out(t, PipelineState.INIT, fr.T_world_body, fr)
-                init = self._fallback_init()
-            return self._finish_dynamic(init, fr)
-        return self._out(t, PipelineState.INIT, fr.T_world_body, fr)
-
-    def _levelled_attitude(self, t: int) -> F64:
-        t0, t1 = static_window(t, self.cfg.init)
-        w = self.imu.slice(t0, t1)
-        if len(w) >= 3:
-            return gravity_aligned_rotation(np.mean(w.accel, axis=0))
-        if self._hint_T is not None:
-            return self._hint_T[:3, :3]
-        return self._visual_attitude()
-
-    def _visual_attitude(self) -> F64:
-        """The first attitude of a world nothing levels (`init.visual_world`): cam0 held level,
-        looking along world x, or the first body frame."""
-        if self.cfg.init.visual_world == "body":
-            return np.eye(3)
-        R_body_cam0 = self.source.rig.cam0.T_body_cam[:3, :3]
-        return R_WORLD_CAM_LEVEL @ R_body_cam0.T
-
-    def _fallback_init(self) -> InitialState:
-        """The window could not be aligned (too little motion): keep the levelled VO frame,
-        velocity from VO differences, zero biases with their priors."""
-        (ta, Ta), (tb, Tb) = self._window[-2], self._window[-1]
-        v = (Tb[:3, 3] - Ta[:3, 3]) / max((tb - ta) * 1e-9, 1e-3)
-        window = tuple((w[0], w[1], v) for w in self._window)
-        return InitialState(tb, Tb, v, np.zeros(3), np.zeros(3), "dynamic", window, np.eye(3))
-
-    def _finish_dynamic(self, init: InitialState, fr: FrontendResult) -> FrameOutput:
-        R = init.R_world_vo if init.R_world_vo is not None else np.eye(3)
-        C = make_T(R, np.zeros(3))
-        # re-express the window and the tracker's map in the gravity-aligned world
-        for rec in self.segment.records:
-            rec.T_chain = C @ rec.T_chain
-        assert fr.T_world_body is not None
-        self.tracker.apply(MapCorrection(C @ fr.T_world_body, T_new_old=C))
-        t_last, T_last, v_last = init.window[-1]
-        last = InitialState(t_last, T_last, v_last, init.bg, init.ba, "dynamic")
-        self._window = []
-        return self._start_estimator(last, fr, window_frame=True)
-
-    def _start_estimator(
-        self, init: InitialState, fr: FrontendResult, window_frame: bool = False
-    ) -> FrameOutput:
-        t = init.t_ns
-        try:
-            upd = self.est.initialize(init, fr.landmark_ids, fr.stereo_uv, fr.stereo_sigma)
-        except EstimatorFailure as e:
-            self._reset(t, f"initialisation failed: {e}", self._hint_T)
-            return self._out(t, PipelineState.INIT, None, fr)
-        seg = self.segment
-        self.summary.init_modes.append(init.mode)
-        T = upd.nav.T_world_body
-        seg.kf_T_chain[0] = T
-        if window_frame:
-            seg.records[-1].T_chain = T
-            seg.records[-1].ref_kf = 0
-        else:
-            seg.records.append(FrameRecord(t, T, 0))
-        self.tracker.apply(MapCorrection(T))
-        self.state = PipelineState.TRACKING
-        self._last_good_t, self._last_good_T = t, T
-        self._hint_T = None
-        return self._keyframe_out(t, upd, fr)
 
     # ---- TRACKING / LOST ------------------------------------------------------------------------
     def _step_tracking(self, ff: FrameFeatures) -> FrameOutput:
         nav = self._nav
         assert nav is not None
         t = ff.t_ns
-        hc = self.cfg.health
         pred = self.est.predict(t)
+        if not self.cfg.inertial:
+            # visual-only: constant velocity from the last two poses (the tracker's own model)
+            pred = NavEstimate(t, self._constant_velocity(t), pred.v_world, pred.bg, pred.ba)
+        # blind for longer than the prediction is worth: no prior, no new map at it
+        blind = self.state == PipelineState.LOST and not self._lost_verdict(t).ok
         since_kf = (t - nav.t_ns) * 1e-9
         bc = self.cfg.backend
         kf_ok = since_kf >= bc.min_keyframe_interval_s
-        if self.cfg.inertial:
-            fr = self.tracker.track(ff, pred.T_world_body, kf_ok)
-        else:
-            # visual-only: constant velocity from the last two poses (the tracker's own model)
-            pred = NavEstimate(t, self._constant_velocity(t), pred.v_world, pred.bg, pred.ba)
-            fr = self.tracker.track(ff, None, kf_ok)
+        prior = pred.T_world_body if self.cfg.inertial and not blind else None
+        fr = self.tracker.track(ff, prior, kf_ok, may_restart=not blind)
         tracked = fr.T_world_body is not None and (
-            fr.state == TrackingState.INIT or fr.n_tracked >= hc.min_tracked
+            fr.state == TrackingState.INIT or fr.n_tracked >= self.cfg.health.min_tracked
         )
-        if tracked and fr.T_world_body is not None:
+        if tracked and fr.T_world_body is not None and not blind:
             v = self._plausible(t, pred.T_world_body, fr.T_world_body)
             if not v.ok:
                 tracked = False
@@ -347,29 +228,64 @@ class SlamPipeline:
                 or since_kf >= bc.max_keyframe_interval_s
             )
             if need_kf:
-                return self._add_keyframe(t, fr, pred)
+                return self._add_keyframe(t, fr, pred, fr.T_world_body if blind else None)
             T = fr.T_world_body
             self.segment.records.append(FrameRecord(t, T, self._kf_index))
             self.state = PipelineState.TRACKING
             self._last_good_t, self._last_good_T = t, T
-            return self._out(t, PipelineState.TRACKING, T, fr, nav)
-        # LOST: bridge with the prediction
-        lost_s = (t - (self._last_good_t or t)) * 1e-9
-        verdict = self.health.lost(lost_s, self.est.imu_ok_since_keyframe())
+            return self._emit(t, PipelineState.TRACKING, T, fr, nav)
+        if self.places is not None and ff.problem is None:
+            out = self._relocalize(ff, pred)
+            if out is not None:
+                return out
+        # LOST: bridge with the prediction while it is worth something (stereo-inertial: only
+        # an IMU prediction; across an IMU dropout there is none to give)
+        verdict = self._lost_verdict(t)
         T = pred.T_world_body
-        if not verdict.ok or not np.all(np.isfinite(T)):
-            reason = verdict.reason if not verdict.ok else "non-finite prediction"
-            return self._fail(t, reason, T if np.all(np.isfinite(T)) else self._last_pose, fr)
-        self.state = PipelineState.LOST
-        self.segment.records.append(FrameRecord(t, T, self._kf_index))
-        return self._out(t, PipelineState.LOST, T, fr, nav)
+        finite = bool(np.all(np.isfinite(T)))
+        bridged = not self.cfg.inertial or self.est.imu_ok_since_keyframe()
+        if verdict.ok and finite and (bridged or self.places is None):
+            self.state = PipelineState.LOST
+            self.segment.records.append(FrameRecord(t, T, self._kf_index))
+            return self._emit(t, PipelineState.LOST, T, fr, nav)
+        lost_s = (t - (self._last_good_t or t)) * 1e-9
+        if self.places is not None and finite and lost_s < self.cfg.places.relocalize_max_s:
+            self.state = PipelineState.LOST  # no pose; relocalization goes on
+            return self._emit(t, PipelineState.LOST, None, fr, nav)
+        reason = verdict.reason if not verdict.ok else "non-finite prediction"
+        if self.places is not None and not verdict.ok:
+            reason += f"; no place recognised for {lost_s:.1f} s"
+        return self._fail(t, reason, T if finite else self._last_pose, fr)
 
-    def _add_keyframe(self, t: int, fr: FrontendResult, pred: NavEstimate) -> FrameOutput:
+    def _lost_verdict(self, t: int) -> Verdict:
+        lost_s = (t - (self._last_good_t or t)) * 1e-9
+        return self.health.lost(lost_s, self.est.imu_ok_since_keyframe())
+
+    def _relocalize(self, ff: FrameFeatures, pred: NavEstimate) -> FrameOutput | None:
+        """A lost frame found in the map by appearance: a new local map there, a keyframe tied
+        to the map by its pose."""
+        assert self.places is not None
+        ok = ff.stereo.valid
+        uv = np.column_stack([ff.left.uv[ok, 0], ff.stereo.uR[ok], ff.left.uv[ok, 1]])
+        view = self.places.view(ff.t_ns, uv, ff.left.desc[ok], octave=ff.left.octave[ok])
+        T = self.places.relocalize(view, self.segment.index)
+        if T is None:
+            return None
+        fr = self.tracker.restart_map(ff, T)
+        if fr.T_world_body is None:
+            return None
+        return self._add_keyframe(ff.t_ns, fr, pred, fr.T_world_body)
+
+    def _add_keyframe(
+        self, t: int, fr: FrontendResult, pred: NavEstimate, pose_prior: F64 | None = None
+    ) -> FrameOutput:
+        """`pose_prior`: the frame was found in the map after a loss (relocalization); it ties
+        the keyframe to the map, and no prediction judges it."""
         assert fr.T_world_body is not None
         t0 = time.perf_counter()
         try:
             upd = self.est.add_keyframe(
-                t, fr.landmark_ids, fr.stereo_uv, fr.T_world_body, fr.stereo_sigma
+                t, fr.landmark_ids, fr.stereo_uv, fr.T_world_body, fr.stereo_sigma, pose_prior
             )
         except EstimatorFailure as e:
             return self._fail(t, str(e), pred.T_world_body, fr)
@@ -377,7 +293,7 @@ class SlamPipeline:
         self._kf_index = upd.index
         T = upd.nav.T_world_body
         verdict = self.health.state(upd.nav)
-        if verdict.ok:
+        if verdict.ok and pose_prior is None:
             verdict = self._plausible(t, pred.T_world_body, T)
         if not verdict.ok:
             return self._fail(t, verdict.reason, pred.T_world_body, fr)
@@ -391,12 +307,68 @@ class SlamPipeline:
             self.tracker.apply(MapCorrection(T, None, upd.landmark_ids, upd.landmark_xyz))
         else:
             self.tracker.apply(MapCorrection(T))
+        return self._keyframe(t, upd, fr)
+
+    def _keyframe(self, t: int, upd: KeyframeUpdate, fr: FrontendResult) -> FrameOutput:
+        """A keyframe in the smoother: place recognition sees it (and may move the estimate),
+        then the segment records it."""
+        upd = self._place_keyframe(t, upd, fr)
         seg = self.segment
+        T = upd.nav.T_world_body
         seg.kf_T_chain[upd.index] = T
         seg.records.append(FrameRecord(t, T, upd.index))
         self.state = PipelineState.TRACKING
         self._last_good_t, self._last_good_T = t, T
         return self._keyframe_out(t, upd, fr)
+
+    def _place_keyframe(self, t: int, upd: KeyframeUpdate, fr: FrontendResult) -> KeyframeUpdate:
+        """Merge (a segment after a reset) or loop closure at this keyframe, then file it."""
+        if self.places is None:
+            return upd
+        p, seg = self.places, self.segment.index
+        for k, T in upd.window:
+            p.update_pose(seg, k, T)
+        view = p.view(t, fr.stereo_uv, fr.descriptors, p.new_key(), fr.landmark_ids, fr.octaves)
+        if p.merge(view, seg, upd.nav.T_world_body) is None:
+            fix = p.loop(view, seg, upd.nav.T_world_body)
+            if fix is not None:
+                upd = self._close_loop(fix, upd)
+        p.file(view, seg, upd.index, upd.nav.T_world_body)
+        return upd
+
+    def _close_loop(self, fix: LoopFix, upd: KeyframeUpdate) -> KeyframeUpdate:
+        """Move the online estimate onto the map it has come back to (`fix.D`): the smoother
+        starts again from the moved state, the tracker's map moves with it, and the segment's
+        final batch gets the loop edge when the recognised keyframe is in this segment."""
+        assert self.places is not None
+        ref = self.frames.keyframes[fix.match.key]
+        edge = (
+            LoopEdge(ref.index, upd.index, fix.T_cand_query)
+            if ref.segment == self.segment.index
+            else None
+        )
+        try:
+            moved = self.est.reanchor(fix.D, edge)
+        except EstimatorFailure:
+            return upd  # the estimate stays where it was; map reuse may still close the loop
+        self.tracker.apply(MapCorrection(moved.nav.T_world_body, T_new_old=fix.D))
+        return moved
+
+    def _map_points(self, segment: int, ids: np.ndarray) -> F64:
+        """The map's positions (N, 3) of landmarks by id in a segment's world (NaN: unknown):
+        the smoother's latest estimates in the current segment, the final batch's in an
+        ended one."""
+        if segment == self.segment.index:
+            return self.est.landmark_positions(ids)
+        out = np.full((len(ids), 3), np.nan)
+        sol = self.segments[segment].solution
+        if sol is not None and len(sol.landmark_ids):
+            order = np.argsort(sol.landmark_ids)
+            sid = sol.landmark_ids[order]
+            j = np.clip(np.searchsorted(sid, ids), 0, len(sid) - 1)
+            hit = sid[j] == ids
+            out[hit] = sol.landmarks[order[j[hit]]]
+        return out
 
     def _plausible(self, t: int, T_pred: F64, T_new: F64) -> Verdict:
         """`Health.motion` of a tracked or smoothed pose at `t`."""
@@ -429,17 +401,7 @@ class SlamPipeline:
         if T_out is not None:
             self.segment.records.append(FrameRecord(t, T_out, max(self._kf_index, 0)))
         self._reset(t, reason, T_out)
-        return FrameOutput(
-            t,
-            PipelineState.LOST,
-            T_out,
-            seg_index,
-            False,
-            fr,
-            None,
-            reason,
-            n_resets=len(self.summary.resets),
-        )
+        return self._emit(t, PipelineState.LOST, T_out, fr, segment=seg_index, reset_reason=reason)
 
     # ---- outputs --------------------------------------------------------------------------------
     def _keyframe_out(self, t: int, upd: KeyframeUpdate, fr: FrontendResult) -> FrameOutput:
@@ -455,11 +417,11 @@ class SlamPipeline:
             np.array([p[0] for p in self._kf_path], dtype=np.int64),
             np.array([p[1] for p in self._kf_path]),
         )
-        return self._out(
+        return self._emit(
             t, PipelineState.TRACKING, upd.nav.T_world_body, fr, upd.nav, path, upd.landmark_xyz
         )
 
-    def _out(
+    def _emit(
         self,
         t: int,
         state: PipelineState,
@@ -468,30 +430,56 @@ class SlamPipeline:
         nav: NavEstimate | None = None,
         path: KeyframePath | None = None,
         landmarks: F64 | None = None,
+        *,
+        segment: int | None = None,
+        reset_reason: str = "",
     ) -> FrameOutput:
+        """One frame's output, in the world frame its segment is in (`T`, the path and the
+        landmarks are in the segment's own world; a merged segment's are moved)."""
+        seg = self.segment.index if segment is None else segment
+        if T is not None:
+            self._online.append((t, T, seg))
+        C = self.frames.T_frame_seg[seg]
+        if not np.array_equal(C, np.eye(4)):
+            T = None if T is None else C @ T
+            if path is not None:
+                path = KeyframePath(path.t_ns, C @ path.T_world_body)
+            if landmarks is not None:
+                landmarks = landmarks @ C[:3, :3].T + C[:3, 3]
+        events: tuple[PlaceEvent, ...] = ()
+        if self.places is not None and len(self.places.events) > self._events_out:
+            events = tuple(self.places.events[self._events_out :])
+            self._events_out = len(self.places.events)
         return FrameOutput(
             t,
             state,
             T,
-            self.segment.index,
+            seg,
             path is not None,
             fr,
             nav,
-            n_keyframes=self._kf_index + 1,
+            reset_reason,
+            n_keyframes=self._kf_index + 1 if segment is None else 0,
             n_resets=len(self.summary.resets),
-            n_active_landmarks=self._n_active,
+            n_active_landmarks=self._n_active if segment is None else 0,
             keyframe_path=path,
             landmarks=landmarks,
+            frame=self.frames.frame_of[seg],
+            places=events,
         )
 
     def result(self) -> RunResult:
         s = self.summary
         s.segments = sum(1 for seg in self.segments if seg.records)
-        final = assemble(self.segments)
+        book = self.frames
+        final = assemble(self.segments, book.frame_of, book.T_frame_seg)
         s.landmarks = len(final.landmarks)
+        if self.places is not None:
+            s.places = list(self.places.events)
+            s.place_db = self.places.stats()
         on_t = np.array([o[0] for o in self._online], dtype=np.int64)
-        on_T = np.array([o[1] for o in self._online]).reshape(-1, 4, 4)
-        on_s = np.array([o[2] for o in self._online], dtype=np.int64)
+        on_T = np.array([book.T_frame_seg[o[2]] @ o[1] for o in self._online]).reshape(-1, 4, 4)
+        on_s = np.array([book.frame_of[o[2]] for o in self._online], dtype=np.int64)
         return RunResult(
             on_t,
             on_T,

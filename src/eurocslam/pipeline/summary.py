@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eurocslam.backend.types import ImuCheck
+from eurocslam.pipeline.places import PlaceEvent
 
 
 def cpu_seconds() -> float:
@@ -45,6 +46,8 @@ class RunSummary:
     init_modes: list[str] = field(default_factory=list)
     imu_checks: list[ImuCheck] = field(default_factory=list)  # final batch, per segment
     state_frames: dict[str, int] = field(default_factory=dict)
+    places: list[PlaceEvent] = field(default_factory=list)  # loops, relocalizations, merges
+    place_db: dict[str, float] = field(default_factory=dict)  # the place database's size, cost
     # how the tracker found each frame's pose: projection | projection_wide | descriptor | lost
     track_paths: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
@@ -64,6 +67,21 @@ class RunSummary:
     @property
     def realtime_factor(self) -> float:
         return self.duration_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    def _place_lines(self) -> list[str]:
+        if not self.place_db:
+            return []
+        loops = [e for e in self.places if e.kind == "loop"]
+        moved = [e for e in loops if e.correction_m > 0 or e.correction_deg > 0]
+        n_reloc = sum(1 for e in self.places if e.kind == "relocalization")
+        n_merge = sum(1 for e in self.places if e.kind == "merge")
+        d = self.place_db
+        return [
+            f"places: {len(loops)} loop(s) recognised ({len(moved)} corrected), {n_reloc} "
+            f"relocalization(s), {n_merge} merge(s); database {d['keyframes']:.0f} keyframes, "
+            f"{d['memory_mb']:.1f} MB ({d['memory_kb_per_keyframe']:.1f} kB each), query "
+            f"{d['query_ms_mean']:.2f} ms, verification {d['verify_ms_mean']:.1f} ms (mean)"
+        ]
 
     def timing_table(self) -> list[tuple[str, int, float, float, float]]:
         """(stage, calls, median ms, total s, share of wall time)."""
@@ -103,6 +121,12 @@ class RunSummary:
                 for c in self.imu_checks
             ],
             "state_frames": self.state_frames,
+            "places": {
+                "loops": [e.to_dict() for e in self.places if e.kind == "loop"],
+                "relocalizations": [e.to_dict() for e in self.places if e.kind == "relocalization"],
+                "merges": [e.to_dict() for e in self.places if e.kind == "merge"],
+                "database": {k: round(v, 3) for k, v in self.place_db.items()},
+            },
             "track_paths": self.track_paths,
             "duration_s": round(self.duration_s, 3),
             "wall_s": round(self.wall_s, 3),
@@ -136,6 +160,7 @@ class RunSummary:
                 )
                 or "-"
             ),
+            *self._place_lines(),
             f"{self.duration_s:.1f} s of data in {self.wall_s:.1f} s wall "
             f"(real-time factor {self.realtime_factor:.2f}), {self.cpu_s:.1f} s CPU",
             f"peak memory {self.peak_rss_mb:.0f} MB"

@@ -11,6 +11,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from eurocslam.dataset.calib import StereoRig, calib_folder, default_rig, load_rig
 from eurocslam.errors import CalibrationError, DatasetError
@@ -74,6 +75,9 @@ class SynthSpec:
     max_yaw_rate: float = 1.0
     knot_dt_s: float = 0.1
     marker: Marker | None = None
+    # (start, end) seconds from the first frame: both cameras black and no IMU rows in between
+    # (the ground truth goes on): a sensor blackout, for relocalization and merging tests
+    blackout: tuple[float, float] | None = None
 
     @classmethod
     def tiny(cls, seed: int = 0, **kw: Any) -> SynthSpec:
@@ -98,7 +102,18 @@ class SynthSpec:
         for k in ("trajectory", "imu", "calib"):
             if d[k] is not None:
                 d[k] = str(Path(d[k]).resolve())
+        if d["blackout"] is None:
+            del d["blackout"]  # the specs made before it existed keep their identity
+        else:
+            d["blackout"] = list(d["blackout"])
         return d
+
+    def in_blackout(self, t_s: F64) -> NDArray[np.bool_]:
+        """Which times (seconds from the first frame) fall in the blackout."""
+        t = np.asarray(t_s, dtype=np.float64)
+        if self.blackout is None:
+            return np.zeros(t.shape, dtype=bool)
+        return (t >= self.blackout[0]) & (t <= self.blackout[1])
 
 
 @dataclass
@@ -228,6 +243,8 @@ class Scene:
     def image(self, k: int, cam: int, want_depth: bool = False) -> tuple[np.ndarray, Any]:
         """Frame k of camera `cam` as 8-bit mono, with the sensor effects of the spec."""
         rad, out = self.radiance(k, cam, want_depth)
+        if self.spec.in_blackout(self.t_s(self.cam_t_ns[k])):
+            return np.zeros(rad.shape, np.uint8), out
         t = float(self.t_s(self.cam_t_ns[k]))
         scale = self.gain(t)
         if self.spec.vignetting:
@@ -358,6 +375,7 @@ def synthesize(
         render_wall = time.perf_counter() - t_render
         imu = scene.imu
         st = scene.motion.spline.evaluate(scene.t_s(imu.t_ns))
+        keep = ~spec.in_blackout(scene.t_s(imu.t_ns))
         summary = _summary(scene, st, render_wall, cpu, nw)
         writer.write_tables(
             stage,
@@ -366,6 +384,7 @@ def synthesize(
             imu.t_ns,
             imu.gyro,
             imu.accel,
+            keep,
             st.p,
             rot_to_quat_wxyz(st.R),
             st.v,

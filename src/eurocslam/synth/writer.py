@@ -106,6 +106,7 @@ def write_tables(
     imu_t_ns: np.ndarray,
     gyro: F64,
     accel: F64,
+    imu_rows: np.ndarray,
     gt_p: F64,
     gt_q_wxyz: F64,
     gt_v: F64,
@@ -120,8 +121,11 @@ def write_tables(
         for cam in ("cam0", "cam1"):
             (mav0 / cam / "data.csv").write_text(CAM_HEADER + "\n" + cam_rows)
             (mav0 / cam / "sensor.yaml").write_text(texts[cam])
+        # `imu_rows`: the samples the IMU delivered (a blackout drops some; the truth goes on)
         (mav0 / "imu0" / "data.csv").write_text(
-            IMU_HEADER + "\n" + _rows(imu_t_ns, np.hstack([gyro, accel]), "%.17g")
+            IMU_HEADER
+            + "\n"
+            + _rows(imu_t_ns[imu_rows], np.hstack([gyro, accel])[imu_rows], "%.17g")
         )
         (mav0 / "imu0" / "sensor.yaml").write_text(texts["imu0"])
         gt = np.hstack([gt_p, gt_q_wxyz, gt_v, bg, ba])

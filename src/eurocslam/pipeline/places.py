@@ -1,0 +1,313 @@
+"""Place recognition in the pipeline: which keyframes may match, and what a match means.
+
+The pipeline keeps one `PlaceRecognizer` over every keyframe of the run and asks it three
+questions, each answered with a verified match and turned here into a pose in a world frame:
+
+* **loop** (each keyframe): a keyframe of the same world frame, at least `loop_min_age_s` old.
+  The match says where the query is in that frame; the difference with where the estimate puts
+  it is the drift, a `LoopFix`. It is acted on once `loop_consistency` consecutive keyframes
+  agree on it (a wrong loop is worse than none) and it is larger than what map reuse's
+  projection search corrects by itself.
+* **relocalization** (a lost frame): a keyframe of the segment's frame: the frame's pose there.
+* **merge** (each keyframe of a segment started after a reset): a keyframe of another frame: the
+  transform that puts this segment's frame into that one, once `loop_consistency` consecutive
+  keyframes agree on it.
+
+Frames: every segment has its own world until it is merged; `FrameBook` says which frame a
+segment is in and its pose there, and where every keyframe is (the pipeline updates the poses
+as the smoother and the final batch refine them).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from eurocslam.camera import RectifiedStereo
+from eurocslam.config import PlacesConfig
+from eurocslam.geometry import F64, inv_T, so3_log
+from eurocslam.places.recognizer import PlaceMatch, PlaceRecognizer, PlaceView
+from eurocslam.places.vocabulary import Vocabulary, default_vocabulary
+
+
+@dataclass(frozen=True)
+class PlaceEvent:
+    """A loop closed, a relocalization or a merge, for the summary and the MCAP."""
+
+    kind: str  # loop | relocalization | merge
+    t_ns: int
+    segment: int
+    query_key: int  # the keyframe that asked (-1: a lost frame)
+    match_key: int  # the keyframe it recognised
+    n_inliers: int
+    p_query: F64  # the query's position and ...
+    p_match: F64  # ... the matched keyframe's, in the world frame of the outputs
+    correction_m: float = 0.0  # how far the estimate was moved (loop, merge)
+    correction_deg: float = 0.0
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "kind": self.kind,
+            "t_ns": self.t_ns,
+            "segment": self.segment,
+            "query_keyframe": self.query_key,
+            "match_keyframe": self.match_key,
+            "inliers": self.n_inliers,
+            "correction_m": round(self.correction_m, 4),
+            "correction_deg": round(self.correction_deg, 3),
+        }
+
+
+@dataclass
+class KeyframeRef:
+    segment: int
+    index: int  # keyframe index in the segment
+    t_ns: int
+    T_seg_body: F64  # latest pose in its segment's world
+
+
+@dataclass
+class FrameBook:
+    """Which world frame each segment is in, and every keyframe's pose."""
+
+    frame_of: list[int] = field(default_factory=list)  # segment -> frame (a segment index)
+    T_frame_seg: list[F64] = field(default_factory=list)  # segment -> its pose in that frame
+    keyframes: dict[int, KeyframeRef] = field(default_factory=dict)
+
+    def new_segment(self) -> None:
+        self.frame_of.append(len(self.frame_of))
+        self.T_frame_seg.append(np.eye(4))
+
+    def merge(self, root: int, frame: int, T_frame_root: F64) -> None:
+        """Put the frame of segment `root` (and every segment in it) into frame `frame`."""
+        for s, f in enumerate(self.frame_of):
+            if f == root:
+                self.frame_of[s] = frame
+                self.T_frame_seg[s] = T_frame_root @ self.T_frame_seg[s]
+
+    def in_frame(self, key: int) -> F64:
+        """A keyframe's pose in its segment's frame."""
+        ref = self.keyframes[key]
+        return self.T_frame_seg[ref.segment] @ ref.T_seg_body
+
+
+@dataclass(frozen=True)
+class LoopFix:
+    """A verified loop: `D` moves the segment's estimate onto the old map (segment frame);
+    `T_cand_query`: the query keyframe seen from the recognised one, as the loop puts it."""
+
+    match: PlaceMatch
+    D: F64
+    T_cand_query: F64
+
+
+def _size(D: F64) -> tuple[float, float]:
+    return float(np.linalg.norm(D[:3, 3])), float(np.degrees(np.linalg.norm(so3_log(D[:3, :3]))))
+
+
+class PlaceStage:
+    """Loops, relocalizations and merges of one run (see the module docstring)."""
+
+    def __init__(
+        self,
+        recognizer: PlaceRecognizer,
+        cfg: PlacesConfig,
+        book: FrameBook,
+        map_points: Callable[[int, NDArray[np.int64]], F64],
+    ) -> None:
+        """`map_points(segment, landmark ids)`: the map's positions of landmarks in that
+        segment's world (NaN where the map does not have them)."""
+        self.recognizer = recognizer
+        self.cfg = cfg
+        self.book = book
+        self.map_points = map_points
+        self.events: list[PlaceEvent] = []
+        self._next_key = 0
+        self._loop_votes: list[tuple[int, F64]] = []  # (keyframe key, D) of consecutive loops
+        self._merge_votes: list[tuple[int, int, F64]] = []  # (keyframe key, frame, T_frame_seg)
+        self._key_of: dict[tuple[int, int], int] = {}  # (segment, keyframe index) -> key
+        self.n_queries = 0
+
+    @classmethod
+    def create(
+        cls,
+        cfg: PlacesConfig,
+        geometry: RectifiedStereo,
+        scales: F64,
+        radius_px: float,
+        book: FrameBook,
+        map_points: Callable[[int, NDArray[np.int64]], F64],
+    ) -> PlaceStage:
+        """With the configured vocabulary (the shipped one by default); a missing or broken
+        vocabulary file is a one-line `VocabularyError`."""
+        vocab = Vocabulary.load(cfg.vocabulary) if cfg.vocabulary else default_vocabulary()
+        recognizer = PlaceRecognizer(vocab, geometry, scales, radius_px, cfg)
+        return cls(recognizer, cfg, book, map_points)
+
+    def stats(self) -> dict[str, float]:
+        """The database's size and cost, for the summary."""
+        r = self.recognizer
+        db = r.db
+        n = len(r)
+        return {
+            "keyframes": n,
+            "memory_mb": r.memory_bytes / 1e6,
+            "memory_kb_per_keyframe": r.memory_bytes / 1e3 / max(n, 1),
+            "queries": db.n_queries,
+            "query_ms_mean": db.total_query_ms / max(db.n_queries, 1),
+            "verifications": r.n_verified,
+            "verify_ms_mean": r.verify_ms / max(r.n_verified, 1),
+        }
+
+    # ---- keyframes ----------------------------------------------------------------------------
+    def view(
+        self,
+        t_ns: int,
+        stereo_uv: F64,
+        desc: np.ndarray,
+        key: int = -1,
+        landmark_ids: NDArray[np.int64] | None = None,
+        octave: NDArray[np.int32] | None = None,
+    ) -> PlaceView:
+        return self.recognizer.view(key, t_ns, stereo_uv, desc, landmark_ids, octave)
+
+    def new_key(self) -> int:
+        self._next_key += 1
+        return self._next_key - 1
+
+    def file(self, view: PlaceView, segment: int, index: int, T_seg_body: F64) -> None:
+        """Add a keyframe (after it has asked its questions, so it does not find itself)."""
+        self.book.keyframes[view.key] = KeyframeRef(segment, index, view.t_ns, T_seg_body)
+        self._key_of[(segment, index)] = view.key
+        self.recognizer.add(view)
+
+    def update_pose(self, segment: int, index: int, T_seg_body: F64) -> None:
+        """A keyframe's refined pose (the smoother's, the final batch's)."""
+        key = self._key_of.get((segment, index))
+        if key is not None:
+            self.book.keyframes[key].T_seg_body = T_seg_body
+
+    def _find(self, view: PlaceView, accept: Callable[[int], bool]) -> PlaceMatch | None:
+        """A verified match, its pose in the candidate's world frame."""
+        self.n_queries += 1
+        return self.recognizer.find(view, accept, self._points)
+
+    def _points(self, cand: PlaceView) -> F64:
+        """A keyframe's points in its world frame: the map's positions of its landmarks, its
+        own stereo points (moved with its pose) where the map has none."""
+        ref = self.book.keyframes[cand.key]
+        T_seg_kf = ref.T_seg_body
+        own = cand.p_body @ T_seg_kf[:3, :3].T + T_seg_kf[:3, 3]
+        mapped = self.map_points(ref.segment, cand.landmark_ids)
+        pts = np.where(np.isfinite(mapped).all(axis=1, keepdims=True), mapped, own)
+        C = self.book.T_frame_seg[ref.segment]
+        return pts @ C[:3, :3].T + C[:3, 3]
+
+    # ---- loops --------------------------------------------------------------------------------
+    def loop(self, view: PlaceView, segment: int, T_seg_query: F64) -> LoopFix | None:
+        """A consistent loop large enough to correct at this keyframe, or None."""
+        c, book = self.cfg, self.book
+        frame = book.frame_of[segment]
+        t_max = view.t_ns - round(c.loop_min_age_s * 1e9)
+
+        def accept(key: int) -> bool:
+            ref = book.keyframes.get(key)
+            return ref is not None and ref.t_ns <= t_max and book.frame_of[ref.segment] == frame
+
+        m = self._find(view, accept)
+        if m is None:
+            self._loop_votes = []
+            return None
+        T_frame_seg = book.T_frame_seg[segment]
+        T_frame_query = m.T_world_query
+        D = inv_T(T_frame_seg) @ T_frame_query @ inv_T(T_seg_query)
+        self._loop_votes = [*self._loop_votes, (view.key, D)][-c.loop_consistency :]
+        if len(self._loop_votes) < c.loop_consistency or not self._agree(
+            [d for _, d in self._loop_votes]
+        ):
+            return None
+        self._loop_votes = []
+        dm, dd = _size(D)
+        p_q = (T_frame_seg @ T_seg_query)[:3, 3]
+        fix = LoopFix(m, D, inv_T(book.in_frame(m.key)) @ T_frame_query)
+        if dm < c.loop_min_correction_m and dd < c.loop_min_correction_deg:
+            self._event("loop", view, segment, m, p_q, 0.0, 0.0)
+            return None
+        self._event("loop", view, segment, m, p_q, dm, dd)
+        return fix
+
+    def _agree(self, Ds: list[F64]) -> bool:
+        ref = Ds[-1]
+        for D in Ds[:-1]:
+            dm, dd = _size(inv_T(ref) @ D)
+            if dm > self.cfg.loop_agree_m or dd > self.cfg.loop_agree_deg:
+                return False
+        return True
+
+    # ---- relocalization -----------------------------------------------------------------------
+    def relocalize(self, view: PlaceView, segment: int) -> F64 | None:
+        """The lost frame's pose in its segment's world, found by appearance, or None."""
+        book = self.book
+        frame = book.frame_of[segment]
+
+        def accept(key: int) -> bool:
+            ref = book.keyframes.get(key)
+            return ref is not None and book.frame_of[ref.segment] == frame
+
+        m = self._find(view, accept)
+        if m is None:
+            return None
+        T_seg_query = inv_T(book.T_frame_seg[segment]) @ m.T_world_query
+        self._event("relocalization", view, segment, m, m.T_world_query[:3, 3], 0.0, 0.0)
+        return T_seg_query
+
+    # ---- merging ------------------------------------------------------------------------------
+    def merge(self, view: PlaceView, segment: int, T_seg_query: F64) -> tuple[int, F64] | None:
+        """(frame, T_frame_seg) once the segment has recognised another frame consistently."""
+        book = self.book
+        frame = book.frame_of[segment]
+        if not self.cfg.merge or frame != segment:
+            return None
+
+        def accept(key: int) -> bool:
+            ref = book.keyframes.get(key)
+            return ref is not None and book.frame_of[ref.segment] != frame
+
+        m = self._find(view, accept)
+        if m is None:
+            self._merge_votes = []
+            return None
+        other = book.frame_of[book.keyframes[m.key].segment]
+        T_frame_seg = m.T_world_query @ inv_T(T_seg_query)
+        votes = [v for v in self._merge_votes if v[1] == other]
+        self._merge_votes = [*votes, (view.key, other, T_frame_seg)][-self.cfg.loop_consistency :]
+        if len(self._merge_votes) < self.cfg.loop_consistency or not self._agree(
+            [v[2] for v in self._merge_votes]
+        ):
+            return None
+        self._merge_votes = []
+        book.merge(segment, other, T_frame_seg)
+        p_q = (T_frame_seg @ T_seg_query)[:3, 3]
+        dm, dd = _size(T_frame_seg)
+        self._event("merge", view, segment, m, p_q, dm, dd)
+        return other, T_frame_seg
+
+    def _event(
+        self,
+        kind: str,
+        view: PlaceView,
+        segment: int,
+        m: PlaceMatch,
+        p_query: F64,
+        dm: float,
+        dd: float,
+    ) -> None:
+        p_match = self.book.in_frame(m.key)[:3, 3]
+        self.events.append(
+            PlaceEvent(
+                kind, view.t_ns, segment, view.key, m.key, m.n_inliers, p_query, p_match, dm, dd
+            )
+        )
