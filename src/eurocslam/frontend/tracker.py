@@ -235,7 +235,12 @@ class StereoTracker:
             # too few stereo points to start a map: keep waiting (pose unknown when lost)
             state = TrackingState.LOST if reinit else TrackingState.INIT
             return self._result(ff, state, None, timings, t0)
-        self.map.clear()
+        # a new map: the old one's reliable landmarks wait in the archive (map reuse finds them
+        # again where the new map meets the old one), the rest go
+        m = self.map
+        if self.config.reuse_map and len(m):
+            m.retire(m.n_found >= self.config.archive_min_found)
+        m.keep(np.zeros(len(m), dtype=bool))
         self._motion.reset_motion()
         ids, kps = self._create_landmarks(
             ff, T_world_body, np.zeros(len(ff.left), dtype=bool), limit=None

@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from eurocslam.camera import RectifiedStereo
 from eurocslam.config import PlacesConfig
-from eurocslam.geometry import F64, inv_T, so3_log
+from eurocslam.geometry import F64, inv_T, make_T, so3_log
 from eurocslam.places.recognizer import PlaceMatch, PlaceRecognizer, PlaceView
 from eurocslam.places.vocabulary import Vocabulary, default_vocabulary
 
@@ -127,8 +127,12 @@ class PlaceStage:
         self.events: list[PlaceEvent] = []
         self._next_key = 0
         self._loop_votes: list[tuple[int, F64]] = []  # (keyframe key, D) of consecutive loops
-        self._merge_votes: list[tuple[int, int, F64]] = []  # (keyframe key, frame, T_frame_seg)
+        # (keyframe key, frame, T_frame_seg, sample) of consecutive matches
+        self._merge_votes: list[tuple[int, int, F64, tuple[int, int, F64]]] = []
         self._key_of: dict[tuple[int, int], int] = {}  # (segment, keyframe index) -> key
+        # per merged segment: (its keyframe, a keyframe of another segment it recognised, the
+        # first seen from the second): where the segment sits in the frame, refined at the end
+        self._samples: dict[int, list[tuple[int, int, F64]]] = {}
         self.n_queries = 0
 
     @classmethod
@@ -223,6 +227,13 @@ class PlaceStage:
             return None
         T_frame_seg = book.T_frame_seg[segment]
         T_frame_query = m.T_world_query
+        if book.keyframes[m.key].segment != segment and frame != segment:
+            # a place of another segment of this frame: evidence for where this segment sits in
+            # the frame (`refine_frames`), not a drift within it
+            self._samples.setdefault(segment, []).append(self._sample(view, m))
+            self._loop_votes = []
+            self._event("loop", view, segment, m, T_frame_query[:3, 3], 0.0, 0.0)
+            return None
         D = inv_T(T_frame_seg) @ T_frame_query @ inv_T(T_seg_query)
         self._loop_votes = [*self._loop_votes, (view.key, D)][-c.loop_consistency :]
         if len(self._loop_votes) < c.loop_consistency or not self._agree(
@@ -283,17 +294,41 @@ class PlaceStage:
         other = book.frame_of[book.keyframes[m.key].segment]
         T_frame_seg = m.T_world_query @ inv_T(T_seg_query)
         votes = [v for v in self._merge_votes if v[1] == other]
-        self._merge_votes = [*votes, (view.key, other, T_frame_seg)][-self.cfg.loop_consistency :]
-        if len(self._merge_votes) < self.cfg.loop_consistency or not self._agree(
-            [v[2] for v in self._merge_votes]
-        ):
+        n = self.cfg.loop_consistency
+        self._merge_votes = [*votes, (view.key, other, T_frame_seg, self._sample(view, m))][-n:]
+        if len(self._merge_votes) < n or not self._agree([v[2] for v in self._merge_votes]):
             return None
+        self._samples[segment] = [v[3] for v in self._merge_votes]
         self._merge_votes = []
         book.merge(segment, other, T_frame_seg)
         p_q = (T_frame_seg @ T_seg_query)[:3, 3]
         dm, dd = _size(T_frame_seg)
         self._event("merge", view, segment, m, p_q, dm, dd)
         return other, T_frame_seg
+
+    def _sample(self, view: PlaceView, m: PlaceMatch) -> tuple[int, int, F64]:
+        return view.key, m.key, inv_T(self.book.in_frame(m.key)) @ m.T_world_query
+
+    def refine_frames(self) -> None:
+        """Where each merged segment sits in its frame, from every place of another segment its
+        keyframes recognised (at the merge and after it), with the final keyframe poses: the
+        mean of the transforms they give, far ones dropped. One match measures it to a few
+        centimetres, tens of them to millimetres. Older segments first: a segment merged into
+        a merged one follows it."""
+        book = self.book
+        for seg in sorted(self._samples):
+            Ts = np.array(
+                [
+                    book.in_frame(match) @ T_match_query @ inv_T(book.keyframes[query].T_seg_body)
+                    for query, match, T_match_query in self._samples[seg]
+                ]
+            ).reshape(-1, 4, 4)
+            t = Ts[:, :3, 3]
+            dist = np.linalg.norm(t - np.median(t, axis=0), axis=1)
+            keep = dist <= max(3.0 * float(np.median(dist)), 0.01)
+            u, _, vt = np.linalg.svd(Ts[keep, :3, :3].sum(axis=0))
+            R = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+            book.T_frame_seg[seg] = make_T(R, t[keep].mean(axis=0))
 
     def _event(
         self,

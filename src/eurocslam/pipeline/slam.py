@@ -212,8 +212,12 @@ class SlamPipeline(Startup):
         kf_ok = since_kf >= bc.min_keyframe_interval_s
         prior = pred.T_world_body if self.cfg.inertial and not blind else None
         fr = self.tracker.track(ff, prior, kf_ok, may_restart=not blind)
+        # after a loss, the tracker's own recovery (no prior) must convince like a place match
+        need = self.cfg.health.min_tracked
+        if blind and self.places is not None:
+            need = max(need, self.cfg.places.min_inliers)
         tracked = fr.T_world_body is not None and (
-            fr.state == TrackingState.INIT or fr.n_tracked >= self.cfg.health.min_tracked
+            fr.state == TrackingState.INIT or fr.n_tracked >= need
         )
         if tracked and fr.T_world_body is not None and not blind:
             v = self._plausible(t, pred.T_world_body, fr.T_world_body)
@@ -255,6 +259,10 @@ class SlamPipeline(Startup):
         reason = verdict.reason if not verdict.ok else "non-finite prediction"
         if self.places is not None and not verdict.ok:
             reason += f"; no place recognised for {lost_s:.1f} s"
+        if finite and not bridged:
+            # across an IMU dropout the prediction is no pose for this frame, only a place
+            # for the next segment to start
+            return self._fail(t, reason, T, fr, guess=False)
         return self._fail(t, reason, T if finite else self._last_pose, fr)
 
     def _lost_verdict(self, t: int) -> Verdict:
@@ -392,15 +400,22 @@ class SlamPipeline(Startup):
         return Tb @ step
 
     def _fail(
-        self, t: int, reason: str, T_hint: F64 | None, fr: FrontendResult | None
+        self,
+        t: int,
+        reason: str,
+        T_hint: F64 | None,
+        fr: FrontendResult | None,
+        guess: bool = True,
     ) -> FrameOutput:
-        """Reset: end the segment; this frame gets the last trusted estimate (if any)."""
+        """Reset: end the segment; the next one starts at `T_hint`, and this frame gets it as
+        its pose (the last trusted estimate) unless it is only a `guess=False`."""
         seg_index = self.segment.index
         ok_hint = T_hint is not None and np.all(np.isfinite(T_hint))
-        T_out = T_hint if ok_hint else None
+        T_start = T_hint if ok_hint else None
+        T_out = T_start if guess else None
         if T_out is not None:
             self.segment.records.append(FrameRecord(t, T_out, max(self._kf_index, 0)))
-        self._reset(t, reason, T_out)
+        self._reset(t, reason, T_start)
         return self._emit(t, PipelineState.LOST, T_out, fr, segment=seg_index, reset_reason=reason)
 
     # ---- outputs --------------------------------------------------------------------------------
@@ -472,6 +487,8 @@ class SlamPipeline(Startup):
         s = self.summary
         s.segments = sum(1 for seg in self.segments if seg.records)
         book = self.frames
+        if self.places is not None:
+            self.places.refine_frames()
         final = assemble(self.segments, book.frame_of, book.T_frame_seg)
         s.landmarks = len(final.landmarks)
         if self.places is not None:
