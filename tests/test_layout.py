@@ -39,6 +39,7 @@ RUN_TOPICS = {
     "/slam/imu_bias": "std_msgs/msg/Float64MultiArray",
     "/slam/velocity": "std_msgs/msg/Float64MultiArray",
     "/slam/position_error": "std_msgs/msg/Float64MultiArray",
+    "/slam/places": "visualization_msgs/msg/MarkerArray",
 }
 RUN_FRAMES = {"world", "body", "imu0", "cam0", "cam1", "gt_world", "gt_body"}
 
@@ -175,6 +176,7 @@ def test_layout_shows_what_the_issue_asks_for() -> None:
         "/slam/landmarks",
         "/slam/drone",
         "/groundtruth/drone",
+        "/slam/places",
         "/cam0/camera_info",
         "/cam1/camera_info",
     } <= shown

@@ -32,6 +32,7 @@ SLAM_TOPICS = {
     "/slam/velocity",
     "/slam/drone",
     "/slam/path_final",
+    "/slam/places",
 }
 SENSOR_TOPICS = {
     "/cam0/image_raw",

@@ -62,6 +62,34 @@ def test_a_bad_config_leaves_the_previous_outputs(
     assert sorted(p.name for p in out.iterdir()) == sorted(before)
 
 
+@pytest.mark.parametrize(
+    "content",
+    [None, b"not a vocabulary", b"PK\x03\x04 truncated zip"],
+    ids=["missing", "text", "truncated"],
+)
+def test_a_bad_vocabulary_is_one_line_and_keeps_the_previous_outputs(
+    seq: Path,
+    finished: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    content: bytes | None,
+) -> None:
+    out = _copy(finished, tmp_path / "out")
+    before = _snapshot(out)
+    voc = tmp_path / "voc.npz"
+    if content is not None:
+        voc.write_bytes(content)
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(f"places:\n  vocabulary: {voc}\n")
+    capsys.readouterr()
+    rc = main(["run", str(seq), "-o", str(out), "--config", str(cfg), "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc != 0
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and str(voc) in lines[0] and "Traceback" not in err, err
+    assert _snapshot(out) == before
+
+
 def test_bad_input_before_the_first_frame_creates_nothing(
     seq: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

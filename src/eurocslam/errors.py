@@ -45,6 +45,11 @@ class VocabularyError(PlaceRecognitionError):
     """A vocabulary file is missing, corrupt, truncated, of another kind or another version."""
 
 
+class MapError(EurocSlamError):
+    """A saved map (`OUT/map`) is missing, corrupt, of another version, or was built with another
+    rig or vocabulary than the run that wants to use it."""
+
+
 def where(path: object, row: int | None = None, key: str | None = None) -> str:
     """Format a location for error messages: 'path:row (key)'."""
     s = str(path)

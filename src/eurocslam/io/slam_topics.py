@@ -16,6 +16,7 @@ the frame's time):
 | /slam/velocity | std_msgs/Float64MultiArray | world velocity xyz [m/s], speed |
 | /slam/position_error | std_msgs/Float64MultiArray | estimate - aligned GT: xyz, norm [m] |
 | /groundtruth/drone | visualization_msgs/MarkerArray | the Firefly on `gt_body` (green) |
+| /slam/places | visualization_msgs/MarkerArray | loops, relocalizations, merges (`PLACE_RGBA`) |
 
 Per keyframe: /slam/path (nav_msgs/Path of the segment's smoothed keyframes) and
 /slam/landmarks (sensor_msgs/PointCloud2 of the smoother's active map, in `world`).
@@ -56,6 +57,13 @@ STATS_LABELS = (
 BIAS_LABELS = ("bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z")
 VEL_LABELS = ("vx", "vy", "vz", "speed")
 ERROR_LABELS = ("ex", "ey", "ez", "norm")  # estimate - ground truth (aligned), world, metres
+# /slam/places: one LINE_LIST marker per event (namespace = kind, id = event number), kept
+# until the end of the recording
+PLACE_RGBA = {
+    "loop": (1.0, 0.2, 0.9, 1.0),
+    "relocalization": (0.2, 0.8, 1.0, 1.0),
+    "merge": (1.0, 0.9, 0.1, 1.0),
+}
 TRACKED_RGBA = (0.1, 1.0, 0.2, 1.0)
 UNTRACKED_RGBA = (1.0, 0.55, 0.0, 1.0)
 
@@ -70,6 +78,7 @@ SLAM_TOPICS = (
     "/slam/velocity",
     "/slam/position_error",
     "/groundtruth/drone",
+    "/slam/places",
     "/slam/path",
     "/slam/landmarks",
     "/slam/path_final",
@@ -127,6 +136,8 @@ class SlamMcapWriter:
         self.cfg = cfg or OutputConfig()
         self._gt_aligned = False
         self._n_kf = 0
+        self._n_places = 0
+        self._n_frames = 0
         self._t_last = streams.t0_ns
         self.T_world_gtworld: F64 | None = None
 
@@ -159,6 +170,9 @@ class SlamMcapWriter:
                 self._w("/slam/drone", drone.MSGTYPE, t, drone.drone_markers(BODY, t))
             self._write_groundtruth_overlay(t, T)
         self._w("/slam/state", ros2.STRING, t, ros2.string(out.state.value))
+        if out.places or self._n_frames == 0:
+            self._write_places(t, out)  # (an empty array first: the topic is in every run)
+        self._n_frames += 1
         if out.is_keyframe:
             self._n_kf += 1
             path, lm = out.keyframe_path, out.landmarks
@@ -216,6 +230,24 @@ class SlamMcapWriter:
                     t, "cam0", fr.draw_uv, ns="features", type=4, scale=4.0, outline_colors=colors
                 ),
             )
+
+    def _write_places(self, t: int, out: FrameOutput) -> None:
+        markers = []
+        for ev in out.places:
+            markers.append(
+                ros2.Marker(
+                    t,
+                    WORLD,
+                    ev.kind,
+                    self._n_places,
+                    5,  # LINE_LIST
+                    scale=(0.02, 0.0, 0.0),
+                    color=PLACE_RGBA.get(ev.kind, (1.0, 1.0, 1.0, 1.0)),
+                    points=np.array([ev.p_query, ev.p_match]),
+                )
+            )
+            self._n_places += 1
+        self._w("/slam/places", ros2.MARKER_ARRAY, t, ros2.marker_array(markers))
 
     def _write_groundtruth_overlay(self, t: int, T_world_body: F64) -> None:
         """Once the ground truth is aligned: its drone (another colour, on `gt_body`) and the
