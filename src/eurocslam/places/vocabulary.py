@@ -34,7 +34,7 @@ from eurocslam.errors import VocabularyError
 KIND = "eurocslam.orb_vocabulary"
 FORMAT_VERSION = 1
 DESCRIPTOR_BYTES = 32
-DEFAULT_FILE = "orb_k10_l4.npz"  # in the package's data/vocabulary/
+DEFAULT_FILE = "orb_k8_l5.npz"  # in the package's data/vocabulary/
 
 I32 = NDArray[np.int32]
 U8 = NDArray[np.uint8]
