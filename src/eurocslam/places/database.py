@@ -21,7 +21,7 @@ index packed into one int). Not thread-safe: one thread adds and queries.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterator
 from typing import NamedTuple
 
 import numpy as np
@@ -82,6 +82,9 @@ class KeyframeDatabase:
 
     def __contains__(self, key: object) -> bool:
         return key in self._slot_of
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.keys())
 
     def keys(self) -> list[int]:
         """The keys in the database, in the order they were added."""

@@ -35,11 +35,11 @@ from eurocslam.synth import SynthSpec
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_SEEDS = tuple(range(1, 11))
+DEFAULT_SEEDS = tuple(range(1, 21))
 DEFAULT_DURATION_S = 60.0
 DEFAULT_STEP_S = 0.5
-DEFAULT_K = 10
-DEFAULT_LEVELS = 4
+DEFAULT_K = 8
+DEFAULT_LEVELS = 5
 REPLICA_SEED_BASE = 100  # world seed of the i-th --groundtruth replica: 100 + i
 
 
@@ -59,7 +59,7 @@ def training_descriptors(
     specs += [
         (
             f"replica of {g.name}, world {REPLICA_SEED_BASE + i}",
-            replica_spec(g, 100 + i),
+            replica_spec(g, REPLICA_SEED_BASE + i),
             replica_step_s,
         )
         for i, g in enumerate(groundtruths)

@@ -19,6 +19,7 @@ import hashlib
 import json
 import threading
 import zipfile
+import zlib
 from dataclasses import dataclass
 from functools import cached_property
 from importlib import resources
@@ -33,7 +34,7 @@ from eurocslam.errors import VocabularyError
 KIND = "eurocslam.orb_vocabulary"
 FORMAT_VERSION = 1
 DESCRIPTOR_BYTES = 32
-DEFAULT_FILE = "orb_k10_l4.npz"  # in the package's data/vocabulary/
+DEFAULT_FILE = "orb_k8_l5.npz"  # in the package's data/vocabulary/
 
 I32 = NDArray[np.int32]
 U8 = NDArray[np.uint8]
@@ -272,17 +273,20 @@ class Vocabulary:
         a one-line `VocabularyError` naming the file."""
         p = Path(path)
         try:
-            with np.load(p, allow_pickle=False) as z:
+            z = np.load(p, allow_pickle=False)
+            if not isinstance(z, np.lib.npyio.NpzFile):
+                raise VocabularyError(f"{p}: not a vocabulary file (a single array, not an .npz)")
+            with z:
                 arrays = {name: z[name] for name in z.files}
         except FileNotFoundError:
             raise VocabularyError(f"{p}: vocabulary file not found") from None
         except IsADirectoryError:
             raise VocabularyError(f"{p}: is a folder, not a vocabulary file") from None
-        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
+        except VocabularyError:
+            raise
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as e:
             msg = str(e).splitlines()[0] if str(e) else type(e).__name__
             raise VocabularyError(f"{p}: not a readable vocabulary file ({msg})") from None
-        if not isinstance(arrays, dict):
-            raise VocabularyError(f"{p}: not a vocabulary file (a single array, not an .npz)")
         kind = _scalar(arrays, "kind", str, p)
         if kind != KIND:
             raise VocabularyError(f"{p}: not an eurocslam ORB vocabulary (kind {kind!r})")
