@@ -43,6 +43,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="replicate this motion: EuRoC ASL ground truth CSV or TUM file",
     )
     p.add_argument(
+        "--world-from",
+        type=Path,
+        nargs="+",
+        default=None,
+        metavar="GT",
+        help="build the world around these ground truths of one place (same frame, e.g. "
+        "MH_01..MH_05) instead of --trajectory alone: every session rendered with the same "
+        "files and --seed flies through the same world (its id is printed)",
+    )
+    p.add_argument(
         "--imu",
         type=Path,
         default=None,
@@ -130,6 +140,7 @@ def spec_from_args(args: argparse.Namespace):  # -> SynthSpec
         end_s=args.end,
         calib=args.calib,
         blackout=blackout,
+        world_from=tuple(args.world_from) if args.world_from else None,
         **{field: getattr(args, field) for _, field, _ in _SWITCHES},
     )
     return spec.ideal() if args.ideal else spec

@@ -6,6 +6,8 @@
 * `{prefix}_error.png` ATE translation and rotation error over time (segments coloured);
 * `{prefix}_rpe.png`   RPE translation error box plots per sub-trajectory length (and in %);
 * `{prefix}_xyz.png`   x, y, z of ground truth and aligned estimate over time.
+
+`plot_joint_top(joint, path)` draws several sessions under their one joint alignment.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from typing import Any
 
 from eurocslam.errors import OutputError
 from eurocslam.eval.evaluate import EvalResult
+from eurocslam.eval.joint import JointResult
 
 GT_COLOR = "0.35"
 SEG_COLORS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown"]
@@ -145,6 +148,40 @@ def plot_xyz(r: EvalResult, path: Path) -> Path:
     return _save(fig, path)
 
 
+def plot_joint_top(j: JointResult, path: Path) -> Path:
+    """Top view of every session's estimate under the joint alignment, over the ground truths."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 6))
+    for k, s in enumerate(j.sessions):
+        ax.plot(
+            s.p_ref[:, 0],
+            s.p_ref[:, 1],
+            color=GT_COLOR,
+            lw=1.6,
+            label="ground truth" if k == 0 else None,
+        )
+    for k, s in enumerate(j.sessions):
+        c = SEG_COLORS[k % len(SEG_COLORS)]
+        ax.plot(s.p_est[:, 0], s.p_est[:, 1], color=c, lw=1.1, label=f"session {s.session}")
+        ax.plot(*s.p_est[0, :2], "o", color=c, ms=5)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title(
+        f"{j.label}: {len(j.sessions)} sessions, one {j.config.align} alignment\n"
+        f"joint ATE rmse {j.ate_trans.rmse:.3f} m over {j.matched} poses",
+        fontsize=10,
+    )
+    out = Path(path)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"{out.parent}: cannot create plot folder: {e}") from None
+    return _save(fig, out)
+
+
 def plot_result(r: EvalResult, out_dir: Path | str, prefix: str) -> list[Path]:
     out = Path(out_dir)
     try:
@@ -165,4 +202,12 @@ def prefix_for(label: str) -> str:
     return "".join(ch for ch in head if ch.isalnum() or ch in "-_") or "estimate"
 
 
-__all__ = ["plot_error", "plot_result", "plot_rpe", "plot_top", "plot_xyz", "prefix_for"]
+__all__ = [
+    "plot_error",
+    "plot_joint_top",
+    "plot_result",
+    "plot_rpe",
+    "plot_top",
+    "plot_xyz",
+    "prefix_for",
+]

@@ -9,6 +9,7 @@ from typing import Any
 
 from eurocslam.errors import OutputError
 from eurocslam.eval.evaluate import EvalResult
+from eurocslam.eval.joint import JointResult
 from eurocslam.eval.metrics import Stats
 
 SCHEMA = "eurocslam.eval/1"
@@ -150,3 +151,89 @@ def markdown_report(results: list[EvalResult]) -> str:
     for r in results:
         parts.append(markdown(r))
     return "\n".join(parts)
+
+
+# ---- several sessions under one alignment (eval.joint) ---------------------------------------
+def joint_note(j: JointResult) -> str | None:
+    """A note when the joint ATE is much larger than the sessions' own: frames not shared?"""
+    if j.frames_look_shared():
+        return None
+    return (
+        f"{j.label}: the joint ATE ({fmt(j.ate_trans.rmse)} m) is {j.ratio:.1f}x the sessions' "
+        f"own-alignment ATE ({fmt(j.own_ate_trans.rmse)} m): do the estimates share a frame? "
+        "(a run that reuses a map puts its session in the map's frame)"
+    )
+
+
+def joint_markdown(j: JointResult) -> str:
+    """One joint evaluation: the alignment, a per-session table and the joint statistics."""
+    cfg, al = j.config, j.alignment
+    a = cfg.align + (f" on the first {cfg.align_first} poses" if cfg.align_first else "")
+    if al.mode == "sim3":
+        a += f", scale {al.s:.4f}"
+    if al.mode in ("posyaw", "se3", "sim3", "origin"):
+        a += f", yaw {al.yaw_deg:+.2f} deg"
+    n = len(j.sessions)
+    out = [f"### Joint: {n} sessions under one alignment, {j.label}", ""]
+    out.append(f"- alignment: one {a}, over the {j.matched} matched poses of all sessions")
+    out.append(
+        f"- ATE rmse {fmt(j.ate_trans.rmse)} m joint vs {fmt(j.own_ate_trans.rmse)} m with "
+        f"each session aligned on its own ({j.ratio:.2f}x)"
+    )
+    note = joint_note(j)
+    if note:
+        out.append(f"- note: {note}")
+    out += [
+        "",
+        "| session | estimate | ground truth | matched / possible | ATE rmse joint [m] "
+        "| ATE rmse own [m] | ATE rot rmse joint [deg] |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for s in j.sessions:
+        st, sr = Stats.of(s.ate_t), Stats.of(s.ate_r)
+        out.append(
+            f"| {s.session} | `{s.own.est_name}` | `{s.own.ref_name}` "
+            f"| {s.association.matched} / {s.association.possible} | {fmt(st.rmse)} "
+            f"| {fmt(s.own.ate_trans.rmse)} | {fmt(sr.rmse, 3)} |"
+        )
+    out.append(
+        f"| all | | | {j.matched} | {fmt(j.ate_trans.rmse)} | {fmt(j.own_ate_trans.rmse)} "
+        f"| {fmt(j.ate_rot.rmse, 3)} |"
+    )
+    out += [
+        "",
+        "| metric (joint alignment) | rmse | mean | median | std | min | max | n |",
+        "|---|---|---|---|---|---|---|---|",
+        _row("ATE translation [m]", j.ate_trans),
+        _row("ATE rotation [deg]", j.ate_rot, 3),
+    ]
+    return "\n".join(out) + "\n"
+
+
+def joint_report(joints: list[JointResult]) -> str:
+    """The joint sections, then every session evaluated on its own."""
+    parts = ["## Trajectory evaluation", ""]
+    parts += [joint_markdown(j) for j in joints]
+    n = len(joints[0].sessions) if joints else 0
+    for k in range(n):
+        for j in joints:
+            r = j.sessions[k].own
+            parts.append(markdown(r, f"Session {k + 1} on its own: {r.label}"))
+    return "\n".join(parts)
+
+
+def joint_json_dict(
+    joints: list[JointResult], sessions: list[dict[str, Any]] | None = None
+) -> dict[str, Any]:
+    """JSON of a joint evaluation: `joint` (one entry per estimate kind), `results` (every
+    session on its own, with its `session` number) and the `sessions`' inputs."""
+    n = len(joints[0].sessions) if joints else 0
+    results = [{"session": k + 1, **j.sessions[k].own.to_dict()} for k in range(n) for j in joints]
+    d: dict[str, Any] = {
+        "schema": SCHEMA,
+        "joint": [j.to_dict() for j in joints],
+        "results": results,
+    }
+    if sessions is not None:
+        d["sessions"] = sessions
+    return d

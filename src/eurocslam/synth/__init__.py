@@ -9,7 +9,8 @@ eurocslam command reads. The motion is a built-in drone flight or a given ground
     seq = synthesize(SynthSpec.tiny(seed=3), tmp_path / "seq")   # ~2 s, a few seconds to make
 
 `Scene.build(spec)` gives the same world without writing files (render single frames, with
-depth maps, for tests).
+depth maps, for tests). `SynthSpec(trajectory=A, world_from=(A, B))` and
+`SynthSpec(trajectory=B, world_from=(A, B))` fly through one shared world (`shared_world.py`).
 """
 
 from eurocslam.synth.sequence import (

@@ -24,6 +24,7 @@ from eurocslam.synth.imu import (
     simulate_imu,
 )
 from eurocslam.synth.render import CameraModel, camera_model, cast_and_shade
+from eurocslam.synth.shared_world import SharedWorld, build_shared_world, check_flight_inside
 from eurocslam.synth.trajectory import (
     BUILTIN_T0_NS,
     Motion,
@@ -78,6 +79,10 @@ class SynthSpec:
     # (start, end) seconds from the first frame: both cameras black and no IMU rows in between
     # (the ground truth goes on): a sensor blackout, for relocalization and merging tests
     blackout: tuple[float, float] | None = None
+    # ground truths of one place (one frame) the world is built around instead of `trajectory`
+    # alone: every sequence rendered with the same files and seed flies through the same world
+    # (`shared_world.py`)
+    world_from: tuple[Path, ...] | None = None
 
     @classmethod
     def tiny(cls, seed: int = 0, **kw: Any) -> SynthSpec:
@@ -106,6 +111,10 @@ class SynthSpec:
             del d["blackout"]  # the specs made before it existed keep their identity
         else:
             d["blackout"] = list(d["blackout"])
+        if d["world_from"] is None:
+            del d["world_from"]  # (likewise)
+        else:
+            d["world_from"] = [str(Path(p).resolve()) for p in d["world_from"]]
         return d
 
     def in_blackout(self, t_s: F64) -> NDArray[np.bool_]:
@@ -129,6 +138,7 @@ class Scene:
     cam_t_ns: np.ndarray
     imu: ImuStream
     notes: list[str] = field(default_factory=list)
+    shared: SharedWorld | None = None  # what a `world_from` world was built from
 
     # ---- construction ---------------------------------------------------------------------
     @classmethod
@@ -148,6 +158,16 @@ class Scene:
                 f"rate {cam_rate:g} Hz (the IMU must share the camera timestamps)"
             )
         ratio_i = round(ratio)
+        if spec.world_from is not None:
+            if spec.trajectory is None:
+                raise DatasetError(
+                    "--world-from needs --trajectory (the flight to render in the shared world)"
+                )
+            if spec.imu is not None:
+                raise DatasetError(
+                    "--world-from with --imu: a real-IMU replica turns its world onto that IMU's "
+                    "gravity, so sessions would not share a frame; use simulated IMUs"
+                )
         if spec.trajectory is None:
             if spec.imu is not None:
                 raise DatasetError("--imu needs --trajectory (the real motion the IMU measured)")
@@ -192,6 +212,16 @@ class Scene:
         cam_t = imu.t_ns[::ratio_i].copy()
         if cam_t.size < 2:
             raise DatasetError("the sequence is too short: fewer than 2 camera frames")
+        models = (camera_model(rig.cam0), camera_model(rig.cam1))
+        if spec.world_from is not None:
+            world, shared = build_shared_world(spec.world_from, spec.seed, marker=spec.marker)
+            st = motion.spline.evaluate((cam_t - motion.t0_ns) * 1e-9)
+            centres = np.vstack(
+                [st.p + st.R @ cam.T_body_cam[:3, 3] for cam in (rig.cam0, rig.cam1)]
+            )
+            t_rel = np.tile((cam_t - gt.t_ns[0]) * 1e-9, 2)
+            check_flight_inside(world, shared, centres, t_rel, str(spec.trajectory))
+            return cls(spec, rig, motion, world, models, cam_t, imu, shared=shared)
         path = motion.spline.positions((cam_t - motion.t0_ns) * 1e-9)
         if spec.trajectory is not None:
             # the world encloses the whole recorded flight, so every crop of a sequence flies
@@ -200,7 +230,6 @@ class Scene:
             p_all = gt.p[::step] if motion.world_R is None else gt.p[::step] @ motion.world_R.T
             path = np.vstack([path, p_all])
         world = build_world(path, spec.seed, floor_z=floor_z, marker=spec.marker)
-        models = (camera_model(rig.cam0), camera_model(rig.cam1))
         return cls(spec, rig, motion, world, models, cam_t, imu)
 
     # ---- rendering ------------------------------------------------------------------------
@@ -406,6 +435,18 @@ def _summary(scene: Scene, st: Any, render_wall: float, cpu: float, workers: int
     speed = np.linalg.norm(st.v, axis=1)
     rate = np.linalg.norm(st.w_body, axis=1)
     n = int(scene.cam_t_ns.size)
+    shared: dict[str, Any] = {}
+    world = scene.world.describe()
+    if scene.shared is not None:
+        # identify the world, so two sessions can be seen to share it (same id)
+        digest = scene.world.digest()
+        names = ", ".join(scene.shared.names())
+        world += f", id {digest[:12]} (built from {names}; seed {scene.spec.seed})"
+        shared = {
+            "world_id": digest,
+            "world_from": [{"file": f.path.name, "digest": f.digest} for f in scene.shared.flights],
+            "world_atlas_bytes": scene.world.atlas_bytes(),
+        }
     return {
         "generator": f"eurocslam {__version__} synth",
         "generator_revision": GENERATOR_REVISION,
@@ -413,7 +454,8 @@ def _summary(scene: Scene, st: Any, render_wall: float, cpu: float, workers: int
         "motion": scene.motion.description,
         "fit_rms_m": scene.motion.fit_rms_m,
         "fit_rms_deg": scene.motion.fit_rms_deg,
-        "world": scene.world.describe(),
+        "world": world,
+        **shared,
         "frames": n,
         "imu_samples": int(scene.imu.t_ns.size),
         "imu": "real rows" if scene.imu.real else "simulated",

@@ -12,6 +12,7 @@ obstacle b has faces `6 + 6 * b + 2 * axis + side`.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import cv2
@@ -74,6 +75,38 @@ class World:
             f"room {size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} m, {nb} boxes, {npil} pillars, "
             f"{texels / 1e6:.1f} Mtexel"
         )
+
+    def digest(self) -> str:
+        """A content digest (hex) of everything the renderer reads: room, obstacles, face
+        tables, texel density and every atlas level. Two worlds with the same digest render the
+        same pixels from the same pose."""
+        h = hashlib.blake2b(digest_size=16)
+        for a in (self.room_lo, self.room_hi, self.box_lo, self.box_hi, self.org_s, self.org_t):
+            h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+        for a in (self.k_s, self.k_t):
+            h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
+        for a in (self.face_axis, self.tex_w, self.tex_h, self.off_x, self.off_y):
+            h.update(np.ascontiguousarray(a, dtype=np.int64).tobytes())
+        h.update(",".join(self.kinds).encode())
+        h.update(np.float64(self.texels_per_m).tobytes())
+        for level in self.atlas:
+            h.update(np.int64(level.shape[1]).tobytes())
+            h.update(np.ascontiguousarray(level).data)
+        return h.hexdigest()
+
+    def atlas_bytes(self) -> int:
+        """Memory held by the texture atlases (every mip level)."""
+        return int(sum(level.nbytes for level in self.atlas))
+
+    def free_space(self, points: F64) -> tuple[F64, F64]:
+        """For each point (N, 3): how far inside the room it is (negative: outside) and its
+        distance to the nearest obstacle (inf without obstacles), in metres."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        inside = np.minimum(pts - self.room_lo, self.room_hi - pts).min(axis=1)
+        near = np.full(pts.shape[0], np.inf)
+        for lo, hi in zip(self.box_lo, self.box_hi, strict=True):
+            near = np.minimum(near, _aabb_distance(pts, lo, hi))
+        return inside, near
 
 
 # ---- procedural textures --------------------------------------------------------------------
