@@ -16,8 +16,8 @@ from eurocslam.pipeline.places import PlaceEvent
 from eurocslam.pipeline.records import FrameOutput, PipelineState, RunResult
 from eurocslam.pipeline.slam import SlamPipeline
 
-FLIGHT_S = 20.0
-BLACKOUT = (9.0, 11.0)  # 2 s: cameras black, no IMU rows, the drone moves on
+FLIGHT_S = 30.0
+BLACKOUT = (12.0, 15.0)  # 3 s: cameras black, no IMU rows, the drone moves on
 
 
 def _single_alignment_ate(res: RunResult, seq: object) -> float:
@@ -35,9 +35,9 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     from eurocslam.synth import SynthSpec, synthesize
 
     root = tmp_path_factory.mktemp("places")
-    spec = SynthSpec(duration_s=FLIGHT_S, seed=4)
+    spec = SynthSpec(duration_s=FLIGHT_S, seed=0)
     plain = synthesize(spec, root / "plain")
-    dark = synthesize(SynthSpec(duration_s=FLIGHT_S, seed=4, blackout=BLACKOUT), root / "dark")
+    dark = synthesize(SynthSpec(duration_s=FLIGHT_S, seed=0, blackout=BLACKOUT), root / "dark")
     return plain, dark
 
 
