@@ -4,6 +4,7 @@ write it. Light on imports, so the command line can show its defaults without lo
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 COMPRESSIONS = ("zstd", "lz4", "none")
 IMAGE_MODES = ("raw", "png", "jpeg")
@@ -17,3 +18,7 @@ class RunOptions:
     compression: str = "lz4"  # MCAP chunk compression, one of COMPRESSIONS
     images: str = "raw"  # how images go into the MCAP, one of IMAGE_MODES
     progress: bool | None = None  # None: when stderr is a terminal
+    # an earlier run's OUT/map to localize in and map on (its frame becomes this run's)
+    map: Path | None = None
+    # keep the earlier map as it is: OUT/map is not written (without --map: no OUT/map either)
+    localize_only: bool = False

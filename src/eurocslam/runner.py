@@ -9,6 +9,9 @@ Writes into `out_dir`:
 * `trajectory_online.tum` / `trajectory_online.csv`: the causal per-frame estimate;
 * `trajectory_final.tum` / `trajectory_final.csv`: after the final batch optimisation;
 * `map.ply`: the batch-optimised landmarks (with their segment);
+* `map/`: the map for later sessions (`run --map OUT/map`; maps/store.py): keyframes with their
+  descriptors and bag-of-words vectors, landmarks; with `--map`, the union of the earlier map
+  and this session's (unless `localize_only`);
 * `config.yaml`: the resolved configuration; `summary.json` / `summary.txt`: the run summary.
 
 Trajectories carry segment ids (`# segment N` lines) when the estimator was reset.
@@ -35,7 +38,9 @@ from eurocslam.io.ply import write_ply
 from eurocslam.io.sink import Sink
 from eurocslam.io.staging import StagedOutputs
 from eurocslam.io.trajectory_io import write_euroc_csv, write_tum
+from eurocslam.maps.store import save_map
 from eurocslam.pipeline.records import FrameOutput, RunResult
+from eurocslam.pipeline.session_map import PriorMap
 from eurocslam.pipeline.slam import SlamPipeline
 from eurocslam.progress import bar
 from eurocslam.run_options import COMPRESSIONS, IMAGE_MODES, RunOptions
@@ -51,6 +56,7 @@ OUTPUT_NAMES = (
     "trajectory_final.tum",
     "trajectory_final.csv",
     "map.ply",
+    "map",
     "config.yaml",
     "summary.json",
     "summary.txt",
@@ -120,7 +126,8 @@ def run_slam(
     n_frames = _frames_in_range(source, t0, t1)
     if n_frames == 0:
         raise OutputError(f"{source.name}: no stereo frames in the selected time range")
-    pipeline = SlamPipeline(source, cfg)
+    prior = PriorMap.load(opt.map) if opt.map is not None else None
+    pipeline = SlamPipeline(source, cfg, prior_map=prior)
 
     staged = StagedOutputs(out_dir, OUTPUT_NAMES)
     started = False  # a frame has been processed (and written)
@@ -152,6 +159,12 @@ def run_slam(
         if mcap is not None:
             mcap.finish(result)
         write_outputs(staged.dir, result, cfg)
+        saved = None if opt.localize_only else pipeline.saved_map()
+        if saved is not None:
+            try:
+                save_map(staged.dir / "map", saved)
+            except OSError as e:
+                raise OutputError(f"{out_dir}: cannot write the map: {e}") from None
     except BaseException as e:
         partial = mcap.abort() if mcap is not None else None
         kept = staged.abandon(keep=[partial.name] if partial is not None and started else [])

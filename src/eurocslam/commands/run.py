@@ -19,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--output",
         required=True,
         metavar="OUT",
-        help="output folder (created): run.mcap, trajectory_*.tum/.csv, map.ply, "
+        help="output folder (created): run.mcap, trajectory_*.tum/.csv, map.ply, map/, "
         "config.yaml, summary.json; a previous run's outputs there are replaced",
     )
     parser.add_argument(
@@ -55,6 +55,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=IMAGE_MODES,
         default=RunOptions.images,
         help="how camera images go into run.mcap (as in convert)",
+    )
+    parser.add_argument(
+        "--map",
+        metavar="DIR",
+        help="an earlier run's OUT/map: start by localizing in it by appearance, then track "
+        "and map on in its frame; OUT/map is saved as the union of both",
+    )
+    parser.add_argument(
+        "--localize-only",
+        action="store_true",
+        help="keep the map as it is: do not write OUT/map",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     live = parser.add_argument_group("live view (Foxglove WebSocket)")
@@ -116,6 +127,10 @@ def run(args: argparse.Namespace) -> int:
     from eurocslam.dataset import has_imu, open_sequence
 
     _check_live_args(args)
+    if args.localize_only and not args.map:
+        from eurocslam.errors import EurocSlamError
+
+        raise EurocSlamError("--localize-only is an option of --map: add --map DIR")
     cfg = load_config(args.config)
     if args.no_imu:
         cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
@@ -130,6 +145,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, cfg, source, live_sink) -> int:  # type: ignore[no-untyped-def]
+    from pathlib import Path
+
     from eurocslam.run_options import RunOptions
     from eurocslam.runner import run_slam
 
@@ -140,6 +157,8 @@ def _run(args: argparse.Namespace, cfg, source, live_sink) -> int:  # type: igno
         compression=args.compression,
         images=args.images,
         progress=False if args.no_progress else None,
+        map=Path(args.map) if args.map else None,
+        localize_only=args.localize_only,
     )
     result = run_slam(source, args.output, cfg, opts, extra_sinks=[live_sink] if live_sink else ())
     for line in result.summary.lines():

@@ -20,7 +20,7 @@ as the smoother and the final batch refine them).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,8 +29,9 @@ from numpy.typing import NDArray
 from eurocslam.camera import RectifiedStereo
 from eurocslam.config import PlacesConfig
 from eurocslam.geometry import F64, inv_T, make_T, so3_log
+from eurocslam.maps.store import MapKeyframe
 from eurocslam.places.recognizer import PlaceMatch, PlaceRecognizer, PlaceView
-from eurocslam.places.vocabulary import Vocabulary, default_vocabulary
+from eurocslam.places.vocabulary import BowVector, Vocabulary, default_vocabulary
 
 
 @dataclass(frozen=True)
@@ -151,6 +152,10 @@ class PlaceStage:
         recognizer = PlaceRecognizer(vocab, geometry, scales, radius_px, cfg)
         return cls(recognizer, cfg, book, map_points)
 
+    @property
+    def vocabulary_id(self) -> str:
+        return self.recognizer.vocabulary.id
+
     def stats(self) -> dict[str, float]:
         """The database's size and cost, for the summary."""
         r = self.recognizer
@@ -188,6 +193,31 @@ class PlaceStage:
         self._key_of[(segment, index)] = view.key
         self.recognizer.add(view)
 
+    def file_saved(self, keyframes: Iterable[MapKeyframe], segment: int) -> None:
+        """An earlier session's keyframes (a saved map), as keyframes 0.. of `segment`."""
+        for i, kf in enumerate(keyframes):
+            view = PlaceView(
+                self.new_key(),
+                kf.t_ns,
+                kf.uv,
+                kf.desc,
+                kf.landmark_id,
+                kf.octave,
+                kf.p_body,
+                BowVector(kf.bow_word, kf.bow_weight),
+            )
+            self.file(view, segment, i, kf.T_world_body)
+
+    def keyframes_in(self, frame: int) -> list[tuple[PlaceView, int, F64]]:
+        """(view, segment, pose in the frame) of every keyframe in world frame `frame`, in the
+        order they were filed."""
+        book = self.book
+        return [
+            (self.recognizer.get(key), ref.segment, book.in_frame(key))
+            for key, ref in book.keyframes.items()
+            if book.frame_of[ref.segment] == frame
+        ]
+
     def update_pose(self, segment: int, index: int, T_seg_body: F64) -> None:
         """A keyframe's refined pose (the smoother's, the final batch's)."""
         key = self._key_of.get((segment, index))
@@ -218,8 +248,14 @@ class PlaceStage:
         t_max = view.t_ns - round(c.loop_min_age_s * 1e9)
 
         def accept(key: int) -> bool:
+            # the recent past of this segment always looks like the present; another
+            # segment's keyframes (an earlier session's map among them) are never that
             ref = book.keyframes.get(key)
-            return ref is not None and ref.t_ns <= t_max and book.frame_of[ref.segment] == frame
+            return (
+                ref is not None
+                and book.frame_of[ref.segment] == frame
+                and (ref.t_ns <= t_max or ref.segment != segment)
+            )
 
         m = self._find(view, accept)
         if m is None:

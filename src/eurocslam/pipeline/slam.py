@@ -37,11 +37,13 @@ from eurocslam.backend.pose_graph import LoopEdge
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate
 from eurocslam.config import RunConfig, resolve_mode
 from eurocslam.dataset.types import SequenceSource, has_imu
+from eurocslam.errors import ConfigError
 from eurocslam.frontend.extraction import FrameFeatures
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState
 from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
+from eurocslam.maps.store import SavedMap
 from eurocslam.memory import peak_rss_mb
 from eurocslam.pipeline.places import FrameBook, LoopFix, PlaceEvent, PlaceStage
 from eurocslam.pipeline.records import (
@@ -52,6 +54,7 @@ from eurocslam.pipeline.records import (
     RunResult,
 )
 from eurocslam.pipeline.segments import FrameRecord, Segment, assemble
+from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map
 from eurocslam.pipeline.startup import Startup
 from eurocslam.pipeline.summary import RunSummary, cpu_seconds
 
@@ -66,7 +69,10 @@ class SlamPipeline(Startup):
         cfg: RunConfig | None = None,
         *,
         observers: Iterable[FrameObserver] = (),
+        prior_map: PriorMap | None = None,
     ) -> None:
+        """`prior_map`: an earlier session's map to localize in and map on (session_map.py);
+        a map this run cannot use is a one-line `MapError`."""
         self.source = source
         self.cfg = resolve_mode(cfg or RunConfig(), has_imu(source), source.name)
         self.observers = list(observers)
@@ -92,6 +98,9 @@ class SlamPipeline(Startup):
         self._events_out = 0  # place events already handed to observers
         self.state = PipelineState.INIT
         self.segments: list[Segment] = []
+        self.prior_map = prior_map
+        if prior_map is not None:
+            self._file_prior_map(prior_map)
         self._new_segment()
         self._last_pose: F64 | None = None
         self._last_good_t: int | None = None  # the last tracked frame ...
@@ -114,6 +123,42 @@ class SlamPipeline(Startup):
         self._kf_index = -1  # the latest keyframe's index in the segment
         self._n_active = 0  # landmarks in the smoother
         self._kf_path: list[tuple[int, F64]] = []  # keyframes: time, latest smoothed pose
+
+    def _file_prior_map(self, prior: PriorMap) -> None:
+        """The earlier map as segment 0 (no frames): its keyframes in the place database, its
+        landmarks as that segment's map; the session starts as the next segment."""
+        if self.places is None:
+            raise ConfigError("--map needs place recognition (places.enabled: true)")
+        prior.check(self.source.rig, self.places.vocabulary_id)
+        seg = Segment(MAP_SEGMENT, solution=prior.solution())
+        self.segments.append(seg)
+        self.frames.new_segment()
+        self.places.file_saved(prior.map.keyframes, MAP_SEGMENT)
+        self.summary.prior_map = {
+            "path": str(prior.path),
+            "keyframes": len(prior.map.keyframes),
+            "landmarks": int(prior.map.landmark_id.size),
+            "load_s": round(prior.load_s, 3),
+        }
+
+    def saved_map(self) -> SavedMap | None:
+        """The run's map for later sessions (after `run`); None without place recognition."""
+        if self.places is None:
+            return None
+
+        def points_in_frame(segment: int, ids: np.ndarray) -> F64:
+            C = self.frames.T_frame_seg[segment]
+            return self._map_points(segment, ids) @ C[:3, :3].T + C[:3, 3]
+
+        return build_map(
+            self.places,
+            len(self.segments),
+            points_in_frame,
+            self.prior_map,
+            self.source.name,
+            self.source.rig,
+            self.cfg.mode,
+        )
 
     def _finish_segment(self) -> None:
         """Final batch over the segment's graph; the segment keeps the solution (and place
@@ -364,9 +409,9 @@ class SlamPipeline(Startup):
 
     def _map_points(self, segment: int, ids: np.ndarray) -> F64:
         """The map's positions (N, 3) of landmarks by id in a segment's world (NaN: unknown):
-        the smoother's latest estimates in the current segment, the final batch's in an
+        the smoother's latest estimates in the running segment, the final batch's in an
         ended one."""
-        if segment == self.segment.index:
+        if segment == self.segment.index and self.segment.solution is None:
             return self.est.landmark_positions(ids)
         out = np.full((len(ids), 3), np.nan)
         sol = self.segments[segment].solution
@@ -483,6 +528,16 @@ class SlamPipeline(Startup):
             places=events,
         )
 
+    def _localized_after_s(self) -> float | None:
+        """Seconds from the first frame to the merge into the earlier map's frame."""
+        starts = [seg.records[0].t_ns for seg in self.segments if seg.records]
+        merges = [
+            e.t_ns
+            for e in (self.places.events if self.places is not None else [])
+            if e.kind == "merge" and self.frames.frame_of[e.segment] == MAP_SEGMENT
+        ]
+        return round((min(merges) - min(starts)) * 1e-9, 3) if merges and starts else None
+
     def result(self) -> RunResult:
         s = self.summary
         s.segments = sum(1 for seg in self.segments if seg.records)
@@ -494,6 +549,8 @@ class SlamPipeline(Startup):
         if self.places is not None:
             s.places = list(self.places.events)
             s.place_db = self.places.stats()
+        if self.prior_map is not None:
+            s.prior_map["localized_after_s"] = self._localized_after_s()
         on_t = np.array([o[0] for o in self._online], dtype=np.int64)
         on_T = np.array([book.T_frame_seg[o[2]] @ o[1] for o in self._online]).reshape(-1, 4, 4)
         on_s = np.array([book.frame_of[o[2]] for o in self._online], dtype=np.int64)

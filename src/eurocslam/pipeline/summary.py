@@ -48,6 +48,8 @@ class RunSummary:
     state_frames: dict[str, int] = field(default_factory=dict)
     places: list[PlaceEvent] = field(default_factory=list)  # loops, relocalizations, merges
     place_db: dict[str, float] = field(default_factory=dict)  # the place database's size, cost
+    # `run --map`: path, keyframes, landmarks, load_s, localized_after_s (None: not localized)
+    prior_map: dict[str, object] = field(default_factory=dict)
     # how the tracker found each frame's pose: projection | projection_wide | descriptor | lost
     track_paths: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
@@ -81,6 +83,21 @@ class RunSummary:
             f"relocalization(s), {n_merge} merge(s); database {d['keyframes']:.0f} keyframes, "
             f"{d['memory_mb']:.1f} MB ({d['memory_kb_per_keyframe']:.1f} kB each), query "
             f"{d['query_ms_mean']:.2f} ms, verification {d['verify_ms_mean']:.1f} ms (mean)"
+        ]
+
+    def _map_lines(self) -> list[str]:
+        m = self.prior_map
+        if not m:
+            return []
+        after = m.get("localized_after_s")
+        return [
+            f"map: {m['path']} ({m['keyframes']} keyframes, {m['landmarks']} landmarks, loaded "
+            f"in {m['load_s']:.2f} s); "
+            + (
+                f"localized in it {after:.2f} s after the first frame"
+                if isinstance(after, float)
+                else "never recognised: this run is in its own frame"
+            )
         ]
 
     def timing_table(self) -> list[tuple[str, int, float, float, float]]:
@@ -127,6 +144,7 @@ class RunSummary:
                 "merges": [e.to_dict() for e in self.places if e.kind == "merge"],
                 "database": {k: round(v, 3) for k, v in self.place_db.items()},
             },
+            "prior_map": self.prior_map,
             "track_paths": self.track_paths,
             "duration_s": round(self.duration_s, 3),
             "wall_s": round(self.wall_s, 3),
@@ -161,6 +179,7 @@ class RunSummary:
                 or "-"
             ),
             *self._place_lines(),
+            *self._map_lines(),
             f"{self.duration_s:.1f} s of data in {self.wall_s:.1f} s wall "
             f"(real-time factor {self.realtime_factor:.2f}), {self.cpu_s:.1f} s CPU",
             f"peak memory {self.peak_rss_mb:.0f} MB"
