@@ -163,16 +163,6 @@ def dense(b: BowVector, n: int) -> np.ndarray:
     return v
 
 
-def test_node_ids_are_ancestors(small_voc) -> None:  # type: ignore[no-untyped-def]
-    voc, images = small_voc
-    words = voc.lookup(images[0])
-    top = voc.node_ids(words, 1)
-    assert np.all(voc.depth[top] <= 1) and np.all(voc.parent[top] == 0)
-    assert np.array_equal(voc.node_ids(words, voc.levels), voc.word_node[words])
-    with pytest.raises(ValueError):
-        voc.node_ids(words, 0)
-
-
 def test_save_load_round_trip(small_voc, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     voc, images = small_voc
     path = voc.save(tmp_path / "v.npz")
@@ -373,49 +363,3 @@ def test_real_euroc_frames_recognise_their_own_place(v101_micro: Path, mh01_firs
     assert same_v1 > 3 * cross and same_mh > 2 * cross
 
 
-# ---- guided matching -------------------------------------------------------------------------
-def reference_guided(da, na, db, nb, max_hamming, ratio):  # type: ignore[no-untyped-def]
-    best: dict[int, tuple[int, int]] = {}  # b -> (distance, a)
-    for i in range(da.shape[0]):
-        cands = sorted(
-            (int(np.unpackbits(da[i] ^ db[j]).sum()), j)
-            for j in range(db.shape[0])
-            if nb[j] == na[i]
-        )
-        if not cands:
-            continue
-        d0, j0 = cands[0]
-        if d0 > max_hamming or (len(cands) > 1 and not d0 < ratio * cands[1][0]):
-            continue
-        if j0 not in best or (d0, i) < best[j0]:
-            best[j0] = (d0, i)
-    return sorted((a, b, d) for b, (d, a) in best.items())
-
-
-def test_guided_matching_agrees_with_a_reference(small_voc) -> None:  # type: ignore[no-untyped-def]
-    from eurocslam.places.matching import match_guided
-
-    voc, images = small_voc
-    da, db = images[0][:120], images[1][:150]
-    na = voc.node_ids(voc.lookup(da), 2)
-    nb = voc.node_ids(voc.lookup(db), 2)
-    for max_h, ratio in ((50, 0.75), (30, 0.9), (256, 1.0)):
-        m = match_guided(da, na, db, nb, max_hamming=max_h, ratio=ratio)
-        got = sorted(zip(m.ia.tolist(), m.ib.tolist(), m.dist.tolist(), strict=True))
-        assert got == reference_guided(da, na, db, nb, max_h, ratio)
-        assert len(set(m.ib.tolist())) == len(m)
-    assert len(match_guided(da[:0], na[:0], db, nb)) == 0
-
-
-def test_guided_matching_on_real_frames() -> None:
-    """KITTI frames 1 m apart share hundreds of guided matches; 20 m apart, far fewer."""
-    if not KITTI.exists():
-        pytest.skip(f"KITTI excerpt not available ({KITTI})")
-    from eurocslam.places.matching import match_guided
-
-    voc = default_vocabulary()
-    desc = orb_real([sorted(KITTI.glob("*.png"))[i] for i in (0, 1, 20)])
-    nodes = [voc.node_ids(voc.lookup(d), 2) for d in desc]
-    near = match_guided(desc[0], nodes[0], desc[1], nodes[1])
-    far = match_guided(desc[0], nodes[0], desc[2], nodes[2])
-    assert len(near) > 150 and len(near) > 3 * len(far)

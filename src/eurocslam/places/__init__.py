@@ -9,7 +9,6 @@ keyframe database searched with it (the DBoW2 design).
     db = KeyframeDatabase()
     best = db.query(bow, 5, exclude_last=20)   # [Candidate(key, score)], best first
     db.add(key, bow)
-    m = match_guided(desc, voc.node_ids(words, 2), kf_desc, kf_nodes)   # only same-node pairs
 
 The database only proposes candidates; loops and relocalizations need geometric verification.
 How the shipped vocabulary was built and how to rebuild it: docs/architecture.md, "Place
@@ -17,15 +16,12 @@ recognition"; `python -m eurocslam.places.train --help`.
 """
 
 from eurocslam.places.database import Candidate, KeyframeDatabase
-from eurocslam.places.matching import Matches, match_guided
 from eurocslam.places.vocabulary import BowVector, Vocabulary, default_vocabulary
 
 __all__ = [
     "BowVector",
     "Candidate",
     "KeyframeDatabase",
-    "Matches",
     "Vocabulary",
     "default_vocabulary",
-    "match_guided",
 ]

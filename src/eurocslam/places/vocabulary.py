@@ -78,9 +78,7 @@ class Vocabulary:
     and `Vocabulary.from_tree`), load one with `Vocabulary.load` or `default_vocabulary()`.
 
     `lookup(desc)` gives each descriptor's word id, `bow(word_ids)` the image's `BowVector`,
-    `transform(desc)` both steps; `node_ids(word_ids, level)` the ancestors at a level, for
-    guided matching (only descriptors under the same node are compared, as DBoW2's direct
-    index). Read-only after construction, so one instance can serve several threads."""
+    `transform(desc)` both steps. Read-only after construction, so one instance can serve several threads."""
 
     def __init__(
         self,
@@ -234,17 +232,6 @@ class Vocabulary:
     def transform(self, desc: U8) -> BowVector:
         """The `BowVector` of one image's descriptors (n, 32) uint8."""
         return self.bow(self.lookup(desc))
-
-    def node_ids(self, word_ids: I32, level: int) -> I32:
-        """Each word's ancestor at `level` (1 = the root's children; a word shallower than
-        `level` is its own node): descriptors that share it are the candidates of guided
-        matching."""
-        if not 1 <= level <= self.levels:
-            raise ValueError(f"level {level} is not in 1..{self.levels}")
-        node = self.word_node[np.asarray(word_ids, dtype=np.int64)]
-        for _ in range(self.levels - level):
-            node = np.where(self.depth[node] > level, self.parent[node], node)
-        return node.astype(np.int32, copy=False)
 
     # ---- files ----------------------------------------------------------------------------
     def save(self, path: Path | str) -> Path:
