@@ -27,7 +27,8 @@ Ground-truth overlay: the sensor streams write the ground truth in its own tree
 (`gt_world -> gt_body`). At the first estimated pose that the ground truth covers, a
 `world -> gt_world` transform is published on /tf_static that puts the ground truth's body on the
 estimate there, matching position and yaw only (gravity is shared), so drift stays visible in
-Foxglove as two diverging trajectories.
+Foxglove as two diverging trajectories; again when the estimate moves to another world frame (a
+reset, or the merge into an earlier map's frame).
 """
 
 from __future__ import annotations
@@ -135,6 +136,7 @@ class SlamMcapWriter:
         self.gt = groundtruth
         self.cfg = cfg or OutputConfig()
         self._gt_aligned = False
+        self._gt_frame = 0  # the world frame (FrameOutput.frame) the overlay is placed in
         self._n_kf = 0
         self._n_places = 0
         self._n_frames = 0
@@ -151,6 +153,10 @@ class SlamMcapWriter:
         fr = out.frontend
         T = out.T_world_body
         if T is not None:
+            if out.frame != self._gt_frame:
+                # the estimate moved to another world frame (a reset, or a merge into an earlier
+                # map's frame): place the ground truth again, in the new frame
+                self._gt_aligned, self._gt_frame = False, out.frame
             if self.cfg.groundtruth_overlay and not self._gt_aligned and self.gt is not None:
                 T_gt = _gt_pose_at(self.gt, t)
                 if T_gt is not None:

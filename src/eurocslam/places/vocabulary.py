@@ -78,7 +78,8 @@ class Vocabulary:
     and `Vocabulary.from_tree`), load one with `Vocabulary.load` or `default_vocabulary()`.
 
     `lookup(desc)` gives each descriptor's word id, `bow(word_ids)` the image's `BowVector`,
-    `transform(desc)` both steps. Read-only after construction, so one instance can serve several threads."""
+    `transform(desc)` both steps. Read-only after construction, so one instance can serve
+    several threads."""
 
     def __init__(
         self,
