@@ -361,5 +361,3 @@ def test_real_euroc_frames_recognise_their_own_place(v101_micro: Path, mh01_firs
     same_mh = np.mean([bm[i].score(bm[i + 1]) for i in range(4)])
     cross = np.mean([a.score(b) for a in bv for b in bm])
     assert same_v1 > 3 * cross and same_mh > 2 * cross
-
-
