@@ -137,6 +137,8 @@ def run_child(variant: str, seq: Path, out: Path, src: Path | None = None) -> di
     """One conversion in its own process; `src`: the `src` folder of the code to run."""
     cmd = [sys.executable, __file__, "--child", variant, "--seq", str(seq), "--out", str(out)]
     env = None if src is None else dict(os.environ, PYTHONPATH=str(src))
+    out.unlink(missing_ok=True)  # not timed: freeing the previous run's file is not conversion
+    os.sync()  # nor is writing back the previous run's dirty pages
     t = time.perf_counter()
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
     _, status, ru = os.wait4(p.pid, 0)
