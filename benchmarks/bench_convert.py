@@ -9,7 +9,12 @@ baseline = what the tutorial does: decode each PNG, serialise with mcap_ros2's d
 (default zstd), one stream after another (all cam0, then all cam1, then the IMU).
 
 usage: .venv/bin/python benchmarks/bench_convert.py [--pairs 1000] [--repeat 3]
-The machine is shared and noisy: compare ratios within one run; the table shows medians.
+       [--variants baseline,raw,...] [--rev NAME=REV ...] [--workers N]
+Variants (--variants, default all): baseline, raw (the default: raw images, zstd), lz4, none,
+png, jpeg, long (raw + zstd on twice the pairs). --rev NAME=REV adds the default settings at git
+revision REV (a temporary worktree; `.` is the working tree), for A/B of code changes.
+The machine is shared and noisy: variants run interleaved, round after round; "x baseline" is
+the median over rounds of each round's ratio to that round's baseline.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -109,14 +115,15 @@ def child_baseline(seq: Path, out: Path) -> dict:
     return {"images": n_img}
 
 
-def child_ours(seq: Path, out: Path, images: str, compression: str) -> dict:
+def child_ours(seq: Path, out: Path, images: str, compression: str, workers: int | None) -> dict:
     from eurocslam.convert import ConvertOptions, convert
     from eurocslam.dataset import open_sequence
 
+    kw = {} if workers is None else {"workers": workers}
     res = convert(
         open_sequence(seq),
         out,
-        ConvertOptions(images=images, compression=compression, progress=False),
+        ConvertOptions(images=images, compression=compression, progress=False, **kw),
     )
     return {
         "images": res.summary.topics[
@@ -126,10 +133,14 @@ def child_ours(seq: Path, out: Path, images: str, compression: str) -> dict:
     }
 
 
-def run_child(variant: str, seq: Path, out: Path) -> dict:
+def run_child(variant: str, seq: Path, out: Path, src: Path | None = None) -> dict:
+    """One conversion in its own process; `src`: the `src` folder of the code to run."""
     cmd = [sys.executable, __file__, "--child", variant, "--seq", str(seq), "--out", str(out)]
+    env = None if src is None else dict(os.environ, PYTHONPATH=str(src))
+    out.unlink(missing_ok=True)  # not timed: freeing the previous run's file is not conversion
+    os.sync()  # nor is writing back the previous run's dirty pages
     t = time.perf_counter()
-    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, env=env)
     _, status, ru = os.wait4(p.pid, 0)
     wall = time.perf_counter() - t
     stdout = p.stdout.read() if p.stdout else ""
@@ -145,20 +156,58 @@ def run_child(variant: str, seq: Path, out: Path) -> dict:
     return res
 
 
+# short name -> (label, child spec, pairs factor)
 VARIANTS = {
-    "baseline (tutorial: mcap_ros2, zstd)": "baseline",
-    "eurocslam raw, zstd": "ours:raw:zstd",
-    "eurocslam raw, lz4": "ours:raw:lz4",
-    "eurocslam raw, none": "ours:raw:none",
-    "eurocslam png (lossless), zstd": "ours:png:zstd",
-    "eurocslam jpeg, zstd": "ours:jpeg:zstd",
+    "baseline": ("baseline (tutorial: mcap_ros2, zstd)", "baseline", 1),
+    "raw": ("eurocslam raw, zstd (default)", "ours:raw:zstd", 1),
+    "lz4": ("eurocslam raw, lz4", "ours:raw:lz4", 1),
+    "none": ("eurocslam raw, none", "ours:raw:none", 1),
+    "png": ("eurocslam png (lossless), zstd", "ours:png:zstd", 1),
+    "jpeg": ("eurocslam jpeg, zstd", "ours:jpeg:zstd", 1),
+    "long": ("eurocslam raw, zstd, 2x pairs", "ours:raw:zstd", 2),
 }
+
+
+@dataclass
+class Variant:
+    label: str
+    spec: str
+    factor: int
+    src: Path | None = None  # None: this checkout's code
+    runs: list[dict] = field(default_factory=list)
+
+
+def checkout(rev: str, into: Path) -> Path:
+    """The `src` folder of git revision `rev` (a temporary worktree), or of the working tree."""
+    if rev == ".":
+        return REPO / "src"
+    r = subprocess.run(
+        ["git", "-C", str(REPO), "worktree", "add", "--detach", "-q", str(into), rev],
+        capture_output=True,
+        text=True,
+    )
+    if r.returncode != 0:
+        raise SystemExit(f"git revision {rev!r}: {r.stderr.strip()}")
+    return into / "src"
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", type=int, default=1000, help="stereo pairs (2 images each)")
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=3, help="rounds (every variant once each)")
+    ap.add_argument(
+        "--variants",
+        default=",".join(VARIANTS),
+        help=f"comma-separated subset of {','.join(VARIANTS)} (default: all)",
+    )
+    ap.add_argument(
+        "--rev",
+        action="append",
+        default=[],
+        metavar="NAME=REV",
+        help="also the default settings at git revision REV (repeatable)",
+    )
+    ap.add_argument("--workers", type=int, help="--workers of every eurocslam variant")
     ap.add_argument("--child")
     ap.add_argument("--seq", type=Path)
     ap.add_argument("--out", type=Path)
@@ -168,55 +217,106 @@ def main() -> int:
         if a.child == "baseline":
             res = child_baseline(a.seq, a.out)
         else:
-            _, images, comp = a.child.split(":")
-            res = child_ours(a.seq, a.out, images, comp)
+            _, images, comp, workers = [*a.child.split(":"), ""][:4]
+            res = child_ours(a.seq, a.out, images, comp, int(workers) if workers else None)
         res["seconds"] = time.perf_counter() - t
         print(json.dumps(res))
         return 0
     if not MICRO.exists():
         print(f"real data not available: {MICRO}", file=sys.stderr)
         return 2
+    names = [n.strip() for n in a.variants.split(",") if n.strip()]
+    unknown = [n for n in names if n not in VARIANTS]
+    if unknown or "baseline" not in names:
+        raise SystemExit(
+            f"--variants: unknown {unknown}; choose from {','.join(VARIANTS)} (with baseline)"
+        )
+    wsuffix = "" if a.workers is None else f":{a.workers}"
+    variants = [
+        Variant(
+            VARIANTS[n][0], VARIANTS[n][1] + ("" if n == "baseline" else wsuffix), VARIANTS[n][2]
+        )
+        for n in names
+    ]
     with tempfile.TemporaryDirectory(prefix="bench_convert_", dir="/tmp") as tmp:
         tmpd = Path(tmp)
-        seqs = {
-            a.pairs: make_sequence(tmpd / f"seq{a.pairs}", a.pairs),
-            2 * a.pairs: make_sequence(tmpd / f"seq{2 * a.pairs}", 2 * a.pairs),
-        }
-        img_mb = 752 * 480 / 1e6
-        results: dict[str, list[dict]] = {k: [] for k in VARIANTS}
-        results[f"eurocslam raw, zstd, {2 * a.pairs} pairs"] = []
-        for _ in range(a.repeat):  # interleave variants so noise hits all of them alike
-            for label, v in VARIANTS.items():
-                results[label].append(run_child(v, seqs[a.pairs], tmpd / "out.mcap"))
-            results[f"eurocslam raw, zstd, {2 * a.pairs} pairs"].append(
-                run_child("ours:raw:zstd", seqs[2 * a.pairs], tmpd / "out.mcap")
-            )
-        base = statistics.median(r["images"] / r["seconds"] for r in results[next(iter(VARIANTS))])
-        print(
-            f"\nconvert benchmark: {a.pairs} stereo pairs ({2 * a.pairs} images, 752x480) + "
-            f"IMU, median of {a.repeat}, {os.cpu_count()} CPUs\n"
-        )
-        print(
-            f"| {'variant':<38} | images | images/s | MB/s (pixels) | x baseline | "
-            "CPU ms/image | peak RSS MB | file MB |"
-        )
-        print(
-            f"|{'-' * 40}|--------|----------|---------------|------------|--------------|"
-            "-------------|---------|"
-        )
-        for label, rs in results.items():
-            ips = statistics.median(r["images"] / r["seconds"] for r in rs)
-            cpu = statistics.median(r["cpu_s"] / r["images"] * 1e3 for r in rs)
-            rss = max(r["rss_mb"] for r in rs)
-            print(
-                f"| {label:<38} | {rs[0]['images']:>6} | {ips:>8.1f} | {ips * img_mb:>13.1f} | "
-                f"{ips / base:>10.2f} | {cpu:>12.2f} | {rss:>11.0f} | {rs[0]['out_mb']:>7.0f} |"
-            )
-        print(
-            "\nimages/s and CPU ms/image include interpreter start-up and imports (same for "
-            "all variants); MB/s counts decoded pixels (752 x 480 bytes per image)."
-        )
+        worktrees = []
+        try:
+            for text in a.rev:
+                name, sep, rev = text.partition("=")
+                if not sep or not name or not rev:
+                    raise SystemExit(f"--rev {text!r}: expected NAME=REV")
+                src = checkout(rev, tmpd / f"tree_{name}")
+                if rev != ".":
+                    worktrees.append(src.parent)
+                variants.append(
+                    Variant(
+                        f"eurocslam raw, zstd @ {name} ({rev})", "ours:raw:zstd" + wsuffix, 1, src
+                    )
+                )
+            run_rounds(a, variants, tmpd)
+        finally:
+            for w in worktrees:
+                subprocess.run(
+                    ["git", "-C", str(REPO), "worktree", "remove", "--force", str(w)],
+                    capture_output=True,
+                )
+    report(a, variants)
     return 0
+
+
+def run_rounds(a: argparse.Namespace, variants: list[Variant], tmpd: Path) -> None:
+    seqs = {
+        f: make_sequence(tmpd / f"seq{f * a.pairs}", f * a.pairs)
+        for f in {v.factor for v in variants}
+    }
+    a.load = [os.getloadavg()[0]]
+    for k in range(a.repeat):  # interleave variants so noise hits all of them alike
+        for v in variants:
+            r = run_child(v.spec, seqs[v.factor], tmpd / "out.mcap", v.src)
+            v.runs.append(r)
+            print(
+                f"  round {k + 1}/{a.repeat} {v.label:<44} "
+                f"{r['images'] / r['seconds']:7.1f} images/s"
+                f"  CPU {r['cpu_s'] / r['images'] * 1e3:5.2f} ms/image  RSS {r['rss_mb']:4.0f} MB",
+                file=sys.stderr,
+                flush=True,
+            )
+        a.load.append(os.getloadavg()[0])
+
+
+def report(a: argparse.Namespace, variants: list[Variant]) -> None:
+    base = variants[0]
+    print(
+        f"\nconvert benchmark: {a.pairs} stereo pairs ({2 * a.pairs} images, 752x480) + "
+        f"IMU, {a.repeat} rounds interleaved, medians; {os.cpu_count()} CPUs, load average "
+        f"{min(a.load):.1f}-{max(a.load):.1f}\n"
+    )
+    print(
+        f"| {'variant':<44} | images | images/s | MB/s (pixels) | x baseline (per round) | "
+        "CPU ms/image | peak RSS MB | file MB |"
+    )
+    print(
+        f"|{'-' * 46}|--------|----------|---------------|---|--------------|"
+        "-------------|---------|"
+    )
+    img_mb = 752 * 480 / 1e6
+    for v in variants:
+        ips = [r["images"] / r["seconds"] for r in v.runs]
+        ratios = [x / (b["images"] / b["seconds"]) for x, b in zip(ips, base.runs, strict=True)]
+        cpu = statistics.median(r["cpu_s"] / r["images"] * 1e3 for r in v.runs)
+        rss = max(r["rss_mb"] for r in v.runs)
+        per = " ".join(f"{x:.2f}" for x in ratios)
+        mips = statistics.median(ips)
+        print(
+            f"| {v.label:<44} | {v.runs[0]['images']:>6} | {mips:>8.1f} | {mips * img_mb:>13.1f} | "
+            f"{statistics.median(ratios):.2f} ({per}) | {cpu:>12.2f} | {rss:>11.0f} | "
+            f"{v.runs[0]['out_mb']:>7.0f} |"
+        )
+    print(
+        "\nimages/s and CPU ms/image include interpreter start-up and imports (same for "
+        "all variants); MB/s counts decoded pixels (752 x 480 bytes per image)."
+    )
 
 
 if __name__ == "__main__":

@@ -173,6 +173,32 @@ def test_v101_mcap_structure_crc_summary_metadata_qos(v101_mcap) -> None:
         assert sum(1 for _ in reader.iter_decoded_messages()) == n
 
 
+def test_compress_threads_and_workers_write_the_same_messages(
+    v101_mcap, v101_micro: Path, tmp_path: Path
+) -> None:
+    """Chunks compressed in background threads, more decode threads: the same messages in the
+    same chunks (only the attachments' create times differ)."""
+    out = tmp_path / "threads.mcap"
+    convert(
+        open_sequence(v101_micro),
+        out,
+        ConvertOptions(progress=False, workers=3, compress_threads=2),
+    )
+
+    def content(path: Path) -> tuple[list, list]:
+        with path.open("rb") as f:
+            r = make_reader(f, validate_crcs=True)
+            msgs = [
+                (c.topic, m.log_time, m.data) for _, c, m in r.iter_messages(log_time_order=False)
+            ]
+            chunks = [
+                (c.uncompressed_size, c.compressed_size) for c in r.get_summary().chunk_indexes
+            ]
+        return msgs, chunks
+
+    assert content(out) == content(v101_mcap[0])
+
+
 def test_mh01_png_passthrough_leica_lz4(mh01_first5: Path, tmp_path: Path) -> None:
     out = tmp_path / "mh01.mcap"
     src = open_sequence(mh01_first5)

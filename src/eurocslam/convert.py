@@ -37,6 +37,7 @@ class ConvertOptions:
     start: float | None = None  # seconds from the sequence start, or absolute ns (>= 1e15)
     end: float | None = None
     workers: int = 2
+    compress_threads: int = 0  # chunk compression threads besides the writer thread (0: in it)
     attach_calibration: bool = True
     progress: bool | None = None  # None: when stderr is a terminal
 
@@ -132,7 +133,9 @@ def convert(
         source, StreamOptions(topics=opt.topics, images=opt.images, t_start_ns=t0, t_end_ns=t1)
     )
     started = time.perf_counter()
-    mcap = McapSink(out, compression=opt.compression)
+    mcap = McapSink(
+        out, compression=opt.compression, compress_threads=max(0, int(opt.compress_threads))
+    )
     sink = ThreadedSink(mcap)
     frames = 0
     pb = bar(

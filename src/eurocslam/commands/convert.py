@@ -62,6 +62,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="image decode/encode threads (default 2)",
     )
     parser.add_argument(
+        "--compress-threads",
+        type=int,
+        default=0,
+        metavar="N",
+        help="MCAP chunk compression threads (default 0: in the writer thread, which already "
+        "runs beside the decode threads; more helps with --workers > 2 on more cores)",
+    )
+    parser.add_argument(
         "--force", action="store_true", help="replace OUT.mcap if it exists (default: refuse)"
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -89,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         start=args.start,
         end=args.end,
         workers=max(1, args.workers),
+        compress_threads=max(0, args.compress_threads),
         progress=False if args.no_progress else None,
     )
     result = convert(source, args.output, opts)

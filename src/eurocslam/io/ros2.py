@@ -96,8 +96,8 @@ def image(t_ns: int, frame_id: str, img: NDArray[np.uint8], encoding: str | None
     out.string(enc)
     out.u8(0)  # is_bigendian
     out.u32(w * c)  # step
-    out.bytes_seq(memoryview(img).cast("B"))  # type: ignore[arg-type]
-    return out.getvalue()
+    out.u32(img.nbytes)  # data: uint8[] length, then the pixels
+    return b"".join((out.buf, memoryview(img).cast("B")))  # type: ignore[arg-type]  # 1 copy
 
 
 def compressed_image(t_ns: int, frame_id: str, fmt: str, data: bytes) -> bytes:
