@@ -101,3 +101,23 @@ def test_asl_copy_gives_the_same_trajectory(k2: Path, tmp_path: Path) -> None:
     assert np.allclose(ra.online_T, rk.online_T, rtol=0, atol=1e-9)
     assert np.allclose(ra.final_T, rk.final_T, rtol=0, atol=1e-9)
     assert len(ra.summary.resets) == len(rk.summary.resets)
+
+
+def test_the_excerpt_in_one_piece_within_10_cm(k2: Path) -> None:
+    """Issue #21's bar on real moving imagery: one segment, no reset, a pose for every frame,
+    Sim(3) ATE <= 0.10 m (the excerpt's stereo geometry and ground truth disagree in scale by
+    about 5 %, so SE(3) is not the measure here). Measured: 0.04 m, scale 0.95."""
+    from eurocslam.eval.align import align
+
+    seq = KittiSequence(k2)
+    res = SlamPipeline(seq, RunConfig()).run()
+    s = res.summary
+    assert s.mode == VISUAL_ONLY and s.segments == 1 and not s.resets
+    assert s.frames_with_pose == s.frames == 51
+    gt = seq.groundtruth
+    idx = np.searchsorted(gt.t_ns, res.final_t_ns)
+    assert np.array_equal(gt.t_ns[idx], res.final_t_ns)
+    G, P = gt.p[idx], res.final_T[:, :3, 3]
+    a = align("sim3", G, P)
+    ate = float(np.sqrt(np.mean(np.sum((G - (a.s * P @ a.R.T + a.t)) ** 2, axis=1))))
+    assert ate <= 0.10, ate

@@ -274,13 +274,19 @@ class StereoTracker:
         used: NDArray[np.bool_],
         limit: int | None = -1,
     ) -> tuple[NDArray[np.int64], NDArray[np.intp]]:
-        """New landmarks from stereo keypoints not already tracked, closest first."""
+        """New landmarks from stereo keypoints not already tracked, closest first; far ones
+        (beyond `far_depth_baselines` baselines) only to make up `min_new_landmarks`."""
+        c = self.config
         if limit == -1:
-            limit = self.config.max_new_landmarks_per_keyframe
+            limit = c.max_new_landmarks_per_keyframe
         cand = np.nonzero(ff.stereo.valid & ~used)[0]
         if cand.size == 0:
             return np.zeros(0, np.int64), cand
-        cand = cand[np.argsort(ff.stereo.depth[cand], kind="stable")]
+        depth = ff.stereo.depth[cand]
+        cand = cand[np.argsort(depth, kind="stable")]
+        if c.far_depth_baselines > 0:
+            n_close = int(np.sum(depth < c.far_depth_baselines * self.rectified.baseline))
+            cand = cand[: max(n_close, c.min_new_landmarks)]
         if limit is not None:
             cand = cand[:limit]
         ids = self.map.add(
