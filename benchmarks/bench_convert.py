@@ -31,6 +31,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bench_ab import checkout  # a temporary worktree of a revision
+
 REPO = Path(__file__).resolve().parents[1]
 MICRO = (
     Path(os.environ.get("EUROCSLAM_SHARED_EUROC", REPO.parent / "shared/data/euroc"))
@@ -175,20 +177,6 @@ class Variant:
     factor: int
     src: Path | None = None  # None: this checkout's code
     runs: list[dict] = field(default_factory=list)
-
-
-def checkout(rev: str, into: Path) -> Path:
-    """The `src` folder of git revision `rev` (a temporary worktree), or of the working tree."""
-    if rev == ".":
-        return REPO / "src"
-    r = subprocess.run(
-        ["git", "-C", str(REPO), "worktree", "add", "--detach", "-q", str(into), rev],
-        capture_output=True,
-        text=True,
-    )
-    if r.returncode != 0:
-        raise SystemExit(f"git revision {rev!r}: {r.stderr.strip()}")
-    return into / "src"
 
 
 def main() -> int:

@@ -15,6 +15,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from eurocslam.errors import OutputError
 from eurocslam.eval.evaluate import EvalResult
 from eurocslam.eval.joint import JointResult
@@ -46,17 +48,16 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
+def _ground_truths_top(ax: Any, refs: list[np.ndarray]) -> None:
+    """Ground-truth positions (x, y) of each segment or session, labelled once."""
+    for k, p in enumerate(refs):
+        ax.plot(p[:, 0], p[:, 1], color=GT_COLOR, lw=1.6, label="ground truth" if k == 0 else None)
+
+
 def plot_top(r: EvalResult, path: Path) -> Path:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 6))
-    for k, s in enumerate(r.segments):
-        ax.plot(
-            s.p_ref[:, 0],
-            s.p_ref[:, 1],
-            color=GT_COLOR,
-            lw=1.6,
-            label="ground truth" if k == 0 else None,
-        )
+    _ground_truths_top(ax, [s.p_ref for s in r.segments])
     for k, s in enumerate(r.segments):
         lab = "estimate (aligned)" if len(r.segments) == 1 else f"segment {s.segment}"
         ax.plot(
@@ -152,14 +153,7 @@ def plot_joint_top(j: JointResult, path: Path) -> Path:
     """Top view of every session's estimate under the joint alignment, over the ground truths."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 6))
-    for k, s in enumerate(j.sessions):
-        ax.plot(
-            s.p_ref[:, 0],
-            s.p_ref[:, 1],
-            color=GT_COLOR,
-            lw=1.6,
-            label="ground truth" if k == 0 else None,
-        )
+    _ground_truths_top(ax, [s.p_ref for s in j.sessions])
     for k, s in enumerate(j.sessions):
         c = SEG_COLORS[k % len(SEG_COLORS)]
         ax.plot(s.p_est[:, 0], s.p_est[:, 1], color=c, lw=1.1, label=f"session {s.session}")
