@@ -50,3 +50,11 @@ def test_far_points_only_make_up_the_minimum() -> None:
     off = dataclasses.replace(cfg, far_depth_baselines=0.0)
     got = _first_frame_landmark_depths(off, np.concatenate([far, close]))
     assert got.size == 320
+
+
+def test_stereo_inertial_runs_take_their_own_far_rule() -> None:
+    cfg = FrontendConfig()
+    assert cfg.for_mode(inertial=False) is cfg
+    inertial = cfg.for_mode(inertial=True)
+    assert inertial.far_depth_baselines == cfg.far_depth_baselines_inertial == 0.0
+    assert dataclasses.replace(inertial, far_depth_baselines=cfg.far_depth_baselines) == cfg

@@ -281,6 +281,7 @@ class KeyframeEstimator:
             stamps,
             tk,
             self._seg.final_only,
+            after_loss=pose_prior is not None,
         )
         n_known = added.n_factors - added.n_new
         if pose_prior is not None:

@@ -6,6 +6,7 @@ there); `validate` checks the ranges and names the file and key.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from eurocslam.errors import ConfigError
@@ -70,9 +71,13 @@ class FrontendConfig:
     # KITTI): beyond, a depth rests on a disparity of a few pixels, and the tenths of a pixel
     # of bias a real rig's rectification leaves (a render does not) make it tens of percent
     # wrong at 1 px; such far points start landmarks only to make up `min_new_landmarks`
-    # (closest first). Real KITTI excerpt: Sim(3) ATE 0.17 -> 0.04 m (a scale that grew along
-    # the path); EuRoC replicas: see RESULTS.md. 0: every stereo point alike
+    # (closest first). 0: every stereo point alike. Visual-only runs, where scale comes from
+    # the stereo depths alone (real KITTI excerpt: Sim(3) ATE 0.17 -> 0.04 m; full-length
+    # replicas: better on 10 of 11); stereo-inertial runs take `far_depth_baselines_inertial`
+    # (the IMU measures scale; the far landmarks' re-finding closes loops: with 40, the
+    # replicas' final ATE was worse on 5 of 11, MH_05 4.1 -> 8.3 mm; RESULTS.md)
     far_depth_baselines: float = 40.0
+    far_depth_baselines_inertial: float = 0.0
     min_new_landmarks: int = 200
     max_landmarks: int = 4000  # local map size cap (oldest culled first)
     landmark_max_unseen_s: float = 2.0  # culled when not matched for this long
@@ -107,6 +112,12 @@ class FrontendConfig:
     # the current one is tracked, decoding in a reader thread (frontend/workers.py)
     prefetch: bool = True
     prefetch_workers: int = 2  # worker processes
+
+    def for_mode(self, inertial: bool) -> FrontendConfig:
+        """The tracker's configuration for a stereo-inertial or a visual-only run."""
+        if not inertial:
+            return self
+        return dataclasses.replace(self, far_depth_baselines=self.far_depth_baselines_inertial)
 
     def validate(self, origin: str = "<config>") -> None:
         checks = [

@@ -81,7 +81,9 @@ class SlamPipeline(Startup):
         self.features = FeatureStream(source.rig, self.cfg.frontend)
         self.stereo = self.features.extractor.geometry
         self.health = Health(self.cfg.health, self.cfg.inertial)
-        self.tracker = StereoTracker(self.features.extractor.rectifier, self.cfg.frontend)
+        self.tracker = StereoTracker(
+            self.features.extractor.rectifier, self.cfg.frontend.for_mode(self.cfg.inertial)
+        )
         self.frames = FrameBook()  # the world frame of each segment
         self.places = (
             PlaceStage.create(
