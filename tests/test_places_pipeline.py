@@ -136,6 +136,7 @@ DEGRADED = {
     "mode": "visual-only",
     "frontend": {"n_features": 400, "far_depth_baselines": 0.0},
     "backend": {"lag_s": 0.4, "max_landmarks_per_keyframe_no_imu": 20},
+    "places": {"correct_loops_online": True},
 }
 
 

@@ -280,7 +280,8 @@ class PlaceStage:
         dm, dd = _size(D)
         p_q = (T_frame_seg @ T_seg_query)[:3, 3]
         fix = LoopFix(m, D, inv_T(book.in_frame(m.key)) @ T_frame_query)
-        if dm < c.loop_min_correction_m and dd < c.loop_min_correction_deg:
+        small = dm < c.loop_min_correction_m and dd < c.loop_min_correction_deg
+        if small or not c.correct_loops_online:
             self._event("loop", view, segment, m, p_q, 0.0, 0.0)
             return None
         self._event("loop", view, segment, m, p_q, dm, dd)
