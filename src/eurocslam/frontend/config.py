@@ -73,7 +73,7 @@ class FrontendConfig:
     # wrong at 1 px; such far points start landmarks only to make up `min_new_landmarks`
     # (closest first). 0: every stereo point alike. Visual-only runs, where scale comes from
     # the stereo depths alone (real KITTI excerpt: Sim(3) ATE 0.17 -> 0.04 m; full-length
-    # replicas: better on 10 of 11); stereo-inertial runs take `far_depth_baselines_inertial`
+    # replicas: better or equal on all 11); stereo-inertial runs take `far_depth_baselines_inertial`
     # (the IMU measures scale; the far landmarks' re-finding closes loops: with 40, the
     # replicas' final ATE was worse on 5 of 11, MH_05 4.1 -> 8.3 mm; RESULTS.md)
     far_depth_baselines: float = 40.0
