@@ -129,8 +129,10 @@ class SlamPipeline(Startup):
     def _file_prior_map(self, prior: PriorMap) -> None:
         """The earlier map as segment 0 (no frames): its keyframes in the place database, its
         landmarks as that segment's map; the session starts as the next segment."""
-        if self.places is None:
-            raise ConfigError("--map needs place recognition (places.enabled: true)")
+        if self.places is None or not self.cfg.places.merge:
+            raise ConfigError(
+                "--map needs place recognition and merging (places.enabled, places.merge: true)"
+            )
         prior.check(self.source.rig, self.places.vocabulary_id)
         seg = Segment(MAP_SEGMENT, solution=prior.solution())
         self.segments.append(seg)
