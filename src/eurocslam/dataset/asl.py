@@ -254,7 +254,61 @@ class FrameEntry:
     right: Path | None
 
 
-class AslSequence:
+class ImageFileFrames:
+    """`frames()` over `self.entries`: stereo pairs of image files, decoded lazily and checked
+    against `self.rig`'s image size; problems are counted in `self.skips`. Shared by the ASL and
+    KITTI readers (they differ only in what the size is compared with)."""
+
+    entries: list[FrameEntry]
+    rig: StereoRig
+    skips: SkipReport
+    SIZE_PROBLEM = "{cam} image size differs from calibration (skipped)"
+    SIZE_EXPECTED = "sensor.yaml says {w}x{h}"
+
+    def frames(
+        self,
+        *,
+        include_incomplete: bool = False,
+        t_start_ns: int | None = None,
+        t_end_ns: int | None = None,
+    ) -> Iterator[StereoFrame]:
+        """Yield stereo frames in time order, decoding images lazily.
+
+        Unreadable images are counted in `skips`. With `include_incomplete`, frames lacking one
+        or both images are yielded with None in their place (the pipeline bridges them).
+        """
+        for e in self.entries:
+            if t_start_ns is not None and e.t_ns < t_start_ns:
+                continue
+            if t_end_ns is not None and e.t_ns > t_end_ns:
+                break
+            left = self._load(e.left, "cam0")
+            right = self._load(e.right, "cam1")
+            if (left is None or right is None) and not include_incomplete:
+                continue
+            yield StereoFrame(e.t_ns, left, right, e.left, e.right)
+
+    def _load(self, path: Path | None, cam: str) -> U8 | None:
+        if path is None:
+            return None
+        dec = decode_image(path)
+        if dec.image is None:
+            self.skips.add("unreadable image", f"{path}: {dec.problem}")
+            return None
+        calib = self.rig.cam0 if cam == "cam0" else self.rig.cam1
+        h, w = dec.image.shape[:2]
+        if (w, h) != (calib.width, calib.height):
+            self.skips.add(
+                self.SIZE_PROBLEM.format(cam=cam),
+                f"{path}: {w}x{h}, " + self.SIZE_EXPECTED.format(w=calib.width, h=calib.height),
+            )
+            return None
+        if dec.converted:
+            self.skips.add(f"{cam} image converted ({dec.converted})", str(path))
+        return dec.image
+
+
+class AslSequence(ImageFileFrames):
     """An EuRoC ASL sequence folder. Implements `SequenceSource`."""
 
     def __init__(self, path: Path | str, rig: StereoRig | None = None) -> None:
@@ -415,45 +469,3 @@ class AslSequence:
             if p.exists():
                 out[s] = p
         return out
-
-    def frames(
-        self,
-        *,
-        include_incomplete: bool = False,
-        t_start_ns: int | None = None,
-        t_end_ns: int | None = None,
-    ) -> Iterator[StereoFrame]:
-        """Yield stereo frames in time order, decoding images lazily.
-
-        Unreadable images are counted in `skips`. With `include_incomplete`, frames lacking one
-        or both images are yielded with None in their place (the pipeline bridges them).
-        """
-        for e in self.entries:
-            if t_start_ns is not None and e.t_ns < t_start_ns:
-                continue
-            if t_end_ns is not None and e.t_ns > t_end_ns:
-                break
-            left = self._load(e.left, "cam0")
-            right = self._load(e.right, "cam1")
-            if (left is None or right is None) and not include_incomplete:
-                continue
-            yield StereoFrame(e.t_ns, left, right, e.left, e.right)
-
-    def _load(self, path: Path | None, cam: str) -> U8 | None:
-        if path is None:
-            return None
-        dec = decode_image(path)
-        if dec.image is None:
-            self.skips.add("unreadable image", f"{path}: {dec.problem}")
-            return None
-        calib = self.rig.cam0 if cam == "cam0" else self.rig.cam1
-        h, w = dec.image.shape[:2]
-        if (w, h) != (calib.width, calib.height):
-            self.skips.add(
-                f"{cam} image size differs from calibration (skipped)",
-                f"{path}: {w}x{h}, sensor.yaml says {calib.width}x{calib.height}",
-            )
-            return None
-        if dec.converted:
-            self.skips.add(f"{cam} image converted ({dec.converted})", str(path))
-        return dec.image

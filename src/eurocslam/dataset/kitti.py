@@ -13,12 +13,11 @@ from the times. Images are `image_0/NNNNNN.png` and `image_1/NNNNNN.png`, one pe
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from eurocslam.dataset.asl import FrameEntry, decode_image
+from eurocslam.dataset.asl import FrameEntry, ImageFileFrames, decode_image
 from eurocslam.dataset.calib import CameraCalib, StereoRig, check_stereo
 from eurocslam.dataset.calib_yaml import camera_yaml_text
 from eurocslam.dataset.kitti_files import (
@@ -35,12 +34,10 @@ from eurocslam.dataset.kitti_files import (
 )
 from eurocslam.dataset.types import (
     I64,
-    U8,
     GroundTruth,
     ImuData,
     PositionData,
     SkipReport,
-    StereoFrame,
     empty_imu,
 )
 from eurocslam.errors import CalibrationError, DatasetError
@@ -81,8 +78,11 @@ def kitti_rig(calib: KittiCalib, width: int, height: int, rate_hz: float) -> Ste
     return rig
 
 
-class KittiSequence:
+class KittiSequence(ImageFileFrames):
     """A KITTI odometry sequence folder (`sequences/NN`). Implements `SequenceSource`."""
+
+    SIZE_PROBLEM = "{cam} image size differs from the sequence's (skipped)"
+    SIZE_EXPECTED = "the first image is {w}x{h}"
 
     def __init__(self, path: Path | str) -> None:
         self.root = Path(path)
@@ -184,42 +184,3 @@ class KittiSequence:
     @property
     def frame_times(self) -> I64:
         return np.array(self.t_ns, dtype=np.int64)
-
-    def frames(
-        self,
-        *,
-        include_incomplete: bool = False,
-        t_start_ns: int | None = None,
-        t_end_ns: int | None = None,
-    ) -> Iterator[StereoFrame]:
-        """Stereo frames in time order, decoded lazily; unreadable images are counted in
-        `skips` (with `include_incomplete` the frame is yielded with None in their place)."""
-        for e in self.entries:
-            if t_start_ns is not None and e.t_ns < t_start_ns:
-                continue
-            if t_end_ns is not None and e.t_ns > t_end_ns:
-                break
-            left = self._load(e.left, "cam0")
-            right = self._load(e.right, "cam1")
-            if (left is None or right is None) and not include_incomplete:
-                continue
-            yield StereoFrame(e.t_ns, left, right, e.left, e.right)
-
-    def _load(self, path: Path | None, cam: str) -> U8 | None:
-        if path is None:
-            return None
-        dec = decode_image(path)
-        if dec.image is None:
-            self.skips.add("unreadable image", f"{path}: {dec.problem}")
-            return None
-        calib = self.rig.cam0 if cam == "cam0" else self.rig.cam1
-        h, w = dec.image.shape[:2]
-        if (w, h) != (calib.width, calib.height):
-            self.skips.add(
-                f"{cam} image size differs from the sequence's (skipped)",
-                f"{path}: {w}x{h}, the first image is {calib.width}x{calib.height}",
-            )
-            return None
-        if dec.converted:
-            self.skips.add(f"{cam} image converted ({dec.converted})", str(path))
-        return dec.image
