@@ -5,7 +5,6 @@ the others' findings. A folder without `imu0/` is stereo-only (a note, not an er
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -414,18 +413,7 @@ class _Doctor:
     # ---- the reader's verdict -------------------------------------------------------------------
     def check_reader(self) -> None:
         """Open the sequence with the reader the pipeline uses: anything it refuses is an error."""
-        try:
-            AslSequence(self.path)
-        except EurocSlamError as e:
-            msg = str(e).replace(f"{self.root}{os.sep}", "")
-            self.add(ERROR, "reader", f"the reader refuses this sequence (convert/run stop): {msg}")
-        except Exception as e:
-            self.add(
-                ERROR,
-                "internal",
-                f"the reader crashed: {type(e).__name__}: {e} "
-                "(a bug in eurocslam; please report it)",
-            )
+        self.found.reader_verdict(lambda: AslSequence(self.path), self.root)
 
 
 def yaml_rate(data: dict[str, Any]) -> float:

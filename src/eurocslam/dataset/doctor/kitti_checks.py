@@ -299,18 +299,7 @@ class _KittiDoctor:
 
     def check_reader(self) -> None:
         """Open the sequence with the reader the pipeline uses: anything it refuses is an error."""
-        try:
-            KittiSequence(self.path)
-        except EurocSlamError as e:
-            msg = str(e).replace(f"{self.path}{os.sep}", "")
-            self.add(ERROR, "reader", f"the reader refuses this sequence (convert/run stop): {msg}")
-        except Exception as e:
-            self.add(
-                ERROR,
-                "internal",
-                f"the reader crashed: {type(e).__name__}: {e} "
-                "(a bug in eurocslam; please report it)",
-            )
+        self.found.reader_verdict(lambda: KittiSequence(self.path), self.path)
 
 
 def diagnose_kitti(

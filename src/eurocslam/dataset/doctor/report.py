@@ -11,7 +11,8 @@ Severity follows what the reader does with the problem:
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+import os
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -185,6 +186,22 @@ class Findings:
         return tuple(
             sorted(self.items, key=lambda f: (SEVERITY_RANK[f.severity], f.file or "", f.line or 0))
         )
+
+    def reader_verdict(self, open_reader: Callable[[], object], folder: Path) -> None:
+        """Open the sequence with the reader the pipeline uses: anything it refuses is an error
+        (paths inside `folder` shortened)."""
+        try:
+            open_reader()
+        except EurocSlamError as e:
+            msg = str(e).replace(f"{folder}{os.sep}", "")
+            self.add(ERROR, "reader", f"the reader refuses this sequence (convert/run stop): {msg}")
+        except Exception as e:
+            self.add(
+                ERROR,
+                "internal",
+                f"the reader crashed: {type(e).__name__}: {e} "
+                "(a bug in eurocslam; please report it)",
+            )
 
     @contextmanager
     def guard(self, check: str, file: Path | None = None) -> Iterator[None]:
