@@ -48,27 +48,39 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
-def _ground_truths_top(ax: Any, refs: list[np.ndarray]) -> None:
-    """Ground-truth positions (x, y) of each segment or session, labelled once."""
+def _draw_top(ax: Any, refs: list[np.ndarray], ests: list[tuple[np.ndarray, str, str]]) -> None:
+    """Ground truths (labelled once) and estimates `(positions, colour, label)` seen from above:
+    on the two axes along which the ground truth spreads most (x, y in a gravity-aligned world;
+    x, z in a camera-like frame with y down, as KITTI's)."""
+    spread = np.ptp(np.concatenate(refs), axis=0) if refs else np.ones(3)
+    i, j = sorted(int(a) for a in np.argsort(spread)[-2:])
     for k, p in enumerate(refs):
-        ax.plot(p[:, 0], p[:, 1], color=GT_COLOR, lw=1.6, label="ground truth" if k == 0 else None)
+        ax.plot(p[:, i], p[:, j], color=GT_COLOR, lw=1.6, label="ground truth" if k == 0 else None)
+    for p, c, lab in ests:
+        ax.plot(p[:, i], p[:, j], color=c, lw=1.1, label=lab)
+        ax.plot(p[0, i], p[0, j], "o", color=c, ms=5)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel(f"{'xyz'[i]} [m]")
+    ax.set_ylabel(f"{'xyz'[j]} [m]")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
 
 
 def plot_top(r: EvalResult, path: Path) -> Path:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 6))
-    _ground_truths_top(ax, [s.p_ref for s in r.segments])
-    for k, s in enumerate(r.segments):
-        lab = "estimate (aligned)" if len(r.segments) == 1 else f"segment {s.segment}"
-        ax.plot(
-            s.p_est[:, 0], s.p_est[:, 1], color=SEG_COLORS[k % len(SEG_COLORS)], lw=1.1, label=lab
-        )
-        ax.plot(*s.p_est[0, :2], "o", color=SEG_COLORS[k % len(SEG_COLORS)], ms=5)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    _draw_top(
+        ax,
+        [s.p_ref for s in r.segments],
+        [
+            (
+                s.p_est,
+                SEG_COLORS[k % len(SEG_COLORS)],
+                "estimate (aligned)" if len(r.segments) == 1 else f"segment {s.segment}",
+            )
+            for k, s in enumerate(r.segments)
+        ],
+    )
     ax.set_title(
         f"{r.label}: top view, {r.config.align} aligned\n"
         f"ATE rmse {r.ate_trans.rmse:.3f} m over {r.matched} poses",
@@ -153,16 +165,14 @@ def plot_joint_top(j: JointResult, path: Path) -> Path:
     """Top view of every session's estimate under the joint alignment, over the ground truths."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 6))
-    _ground_truths_top(ax, [s.p_ref for s in j.sessions])
-    for k, s in enumerate(j.sessions):
-        c = SEG_COLORS[k % len(SEG_COLORS)]
-        ax.plot(s.p_est[:, 0], s.p_est[:, 1], color=c, lw=1.1, label=f"session {s.session}")
-        ax.plot(*s.p_est[0, :2], "o", color=c, ms=5)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    _draw_top(
+        ax,
+        [s.p_ref for s in j.sessions],
+        [
+            (s.p_est, SEG_COLORS[k % len(SEG_COLORS)], f"session {s.session}")
+            for k, s in enumerate(j.sessions)
+        ],
+    )
     ax.set_title(
         f"{j.label}: {len(j.sessions)} sessions, one {j.config.align} alignment\n"
         f"joint ATE rmse {j.ate_trans.rmse:.3f} m over {j.matched} poses",
