@@ -97,7 +97,11 @@ class StereoObservations:
             # MH_02 replica 3.1 -> 5.2 mm), then the nearest: the nearest alone can crowd one
             # region
             active = np.array([lms.is_active(int(ids[i])) for i in idx], dtype=bool)
-            seen = np.array([after_loss and lms.was_smoothed(int(ids[i])) for i in idx], dtype=bool)
+            seen = (
+                np.array([lms.was_smoothed(int(ids[i])) for i in idx], dtype=bool)
+                if after_loss
+                else np.zeros(idx.size, dtype=bool)
+            )
             priority = np.where(active, 2e6, np.where(seen, 1e6, 0.0)) - depth[idx]
             pick = bucket_select(uv[idx][:, [0, 2]], priority, cap, st.width, st.height, 4, 3)
             rest = np.setdiff1d(np.arange(idx.size), pick)
