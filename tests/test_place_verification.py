@@ -86,3 +86,53 @@ def test_a_look_alike_place_is_not_verified(tiled: Views, start: int) -> None:
     assert sum(p[0].distance < c.ratio * p[1].distance for p in matched) > c.min_inliers
     assert tiled.verify(a, b) is None
     assert tiled.verify(b, a) is None
+
+
+def test_points_without_a_position_take_no_part(tiled: Views) -> None:
+    """A candidate's points that are NaN (far stereo points the map does not hold: the place
+    stage leaves them out) take no part: the revisit is still verified with its pose from the
+    others, and with none left it is not verified."""
+    a, _ = far_apart_frames(tiled.scene)
+    cand, query = tiled.view(a), tiled.view(a + 4)
+    pts = tiled.points_world(cand)
+    full = tiled.recognizer.verify(query, cand, pts)
+    assert full is not None
+    disparity = cand.stereo_uv[:, 0] - cand.stereo_uv[:, 1]
+    half = pts.copy()
+    half[disparity < np.median(disparity)] = np.nan
+    m = tiled.recognizer.verify(query, cand, half)
+    assert m is not None
+    T_est, inliers = m
+    assert PlacesConfig().min_inliers <= inliers < full[1]
+    assert np.linalg.norm(T_est[:3, 3] - tiled.T_world_body(a + 4)[:3, 3]) < 0.01
+    assert tiled.recognizer.verify(query, cand, np.full_like(pts, np.nan)) is None
+
+
+@pytest.mark.parametrize(("baselines", "found"), [(40.0, True), (1e-3, False)])
+def test_the_stage_verifies_with_close_points_only(
+    tiled: Views, baselines: float, found: bool
+) -> None:
+    """The place stage verifies a candidate with the map's landmarks and, where the map has
+    none, with the candidate's own stereo points closer than `verify_max_depth_baselines`:
+    at 40 baselines the revisit is found, with every point far (a tiny bound) it is not."""
+    from eurocslam.pipeline.places import FrameBook, PlaceStage
+
+    cfg = PlacesConfig(verify_max_depth_baselines=baselines)
+    r = tiled.recognizer
+    book = FrameBook()
+    book.new_segment()
+    stage = PlaceStage.create(
+        cfg,
+        r.geometry,
+        r.scales,
+        r.radius_px,
+        book,
+        lambda seg, ids: np.full((ids.size, 3), np.nan),
+    )
+    a, _ = far_apart_frames(tiled.scene)
+    cand, query = tiled.view(a), tiled.view(a + 4)
+    stage.file(cand, 0, 0, tiled.T_world_body(a))
+    T = stage.relocalize(query, 0)
+    assert (T is not None) == found
+    if T is not None:
+        assert np.linalg.norm(T[:3, 3] - tiled.T_world_body(a + 4)[:3, 3]) < 0.01

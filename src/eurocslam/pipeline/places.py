@@ -118,10 +118,13 @@ class PlaceStage:
         cfg: PlacesConfig,
         book: FrameBook,
         map_points: Callable[[int, NDArray[np.int64]], F64],
+        min_disparity_px: float = 0.0,
     ) -> None:
         """`map_points(segment, landmark ids)`: the map's positions of landmarks in that
-        segment's world (NaN where the map does not have them)."""
+        segment's world (NaN where the map does not have them); `min_disparity_px`: a
+        keyframe's own stereo points with less disparity are not used for verification."""
         self.recognizer = recognizer
+        self.min_disparity_px = min_disparity_px
         self.cfg = cfg
         self.book = book
         self.map_points = map_points
@@ -150,7 +153,8 @@ class PlaceStage:
         vocabulary file is a one-line `VocabularyError`."""
         vocab = Vocabulary.load(cfg.vocabulary) if cfg.vocabulary else default_vocabulary()
         recognizer = PlaceRecognizer(vocab, geometry, scales, radius_px, cfg)
-        return cls(recognizer, cfg, book, map_points)
+        n = cfg.verify_max_depth_baselines
+        return cls(recognizer, cfg, book, map_points, geometry.fx / n if n > 0 else 0.0)
 
     @property
     def vocabulary_id(self) -> str:
@@ -231,10 +235,12 @@ class PlaceStage:
 
     def _points(self, cand: PlaceView) -> F64:
         """A keyframe's points in its world frame: the map's positions of its landmarks, its
-        own stereo points (moved with its pose) where the map has none."""
+        own close stereo points (moved with its pose) where the map has none, NaN otherwise."""
         ref = self.book.keyframes[cand.key]
         T_seg_kf = ref.T_seg_body
         own = cand.p_body @ T_seg_kf[:3, :3].T + T_seg_kf[:3, 3]
+        far = cand.stereo_uv[:, 0] - cand.stereo_uv[:, 1] < self.min_disparity_px
+        own[far] = np.nan
         mapped = self.map_points(ref.segment, cand.landmark_ids)
         pts = np.where(np.isfinite(mapped).all(axis=1, keepdims=True), mapped, own)
         C = self.book.T_frame_seg[ref.segment]

@@ -153,7 +153,7 @@ class PlaceRecognizer:
 
     def verify(self, query: PlaceView, cand: PlaceView, pts_world: F64) -> tuple[F64, int] | None:
         """(T_world_query, inliers) when the query's keypoints see the candidate's points
-        `pts_world` (rows of `cand`)."""
+        `pts_world` (rows of `cand`; rows that are NaN take no part)."""
         t0 = time.perf_counter()
         try:
             return self._verify(query, cand, pts_world)
@@ -178,6 +178,10 @@ class PlaceRecognizer:
         if len(qi) < c.min_inliers:
             return None
         q, k = np.asarray(qi), np.asarray(ci)
+        placed = np.isfinite(pts_world[k]).all(axis=1)  # points without a position: no part
+        q, k = q[placed], k[placed]
+        if q.size < c.min_inliers:
+            return None
         T_rc, inl = pnp_ransac(
             pts_world[k],
             query.stereo_uv[q][:, [0, 2]],
@@ -197,11 +201,12 @@ class PlaceRecognizer:
         tree = cKDTree(feats.uv)
         oct_max = self.scales.size - 1
         n = 0
+        placed = np.isfinite(pts_world).all(axis=1)
         for radius in (2.0 * self.radius_px, self.radius_px):
             proj = project_map(T_rc, pts_world, g)
             rows, kps, _ = search_by_projection(
                 proj,
-                np.nonzero(proj.in_view)[0],
+                np.nonzero(proj.in_view & placed)[0],
                 cand.desc,
                 cand.octave,
                 feats,
