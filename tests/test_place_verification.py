@@ -13,6 +13,7 @@ from eurocslam.config import PlacesConfig
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import Extractor, pyramid_scales
+from eurocslam.pipeline.places import FrameBook, PlaceStage
 from eurocslam.places import default_vocabulary
 from eurocslam.places.recognizer import PlaceRecognizer, PlaceView
 from eurocslam.synth import Scene
@@ -115,8 +116,6 @@ def test_the_stage_verifies_with_close_points_only(
     """The place stage verifies a candidate with the map's landmarks and, where the map has
     none, with the candidate's own stereo points closer than `verify_max_depth_baselines`:
     at 40 baselines the revisit is found, with every point far (a tiny bound) it is not."""
-    from eurocslam.pipeline.places import FrameBook, PlaceStage
-
     cfg = PlacesConfig(verify_max_depth_baselines=baselines)
     r = tiled.recognizer
     book = FrameBook()

@@ -201,12 +201,12 @@ class PlaceRecognizer:
         tree = cKDTree(feats.uv)
         oct_max = self.scales.size - 1
         n = 0
-        placed = np.isfinite(pts_world).all(axis=1)
+        has_position = np.isfinite(pts_world).all(axis=1)
         for radius in (2.0 * self.radius_px, self.radius_px):
             proj = project_map(T_rc, pts_world, g)
             rows, kps, _ = search_by_projection(
                 proj,
-                np.nonzero(proj.in_view & placed)[0],
+                np.nonzero(proj.in_view & has_position)[0],
                 cand.desc,
                 cand.octave,
                 feats,
