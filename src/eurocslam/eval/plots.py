@@ -66,6 +66,10 @@ def _draw_top(ax: Any, refs: list[np.ndarray], ests: list[tuple[np.ndarray, str,
     ax.legend(loc="best", fontsize=8)
 
 
+def _segment_label(r: EvalResult, segment: int) -> str:
+    return "estimate (aligned)" if len(r.segments) == 1 else f"segment {segment}"
+
+
 def plot_top(r: EvalResult, path: Path) -> Path:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 6))
@@ -76,7 +80,7 @@ def plot_top(r: EvalResult, path: Path) -> Path:
             (
                 s.p_est,
                 SEG_COLORS[k % len(SEG_COLORS)],
-                "estimate (aligned)" if len(r.segments) == 1 else f"segment {s.segment}",
+                _segment_label(r, s.segment),
             )
             for k, s in enumerate(r.segments)
         ],
@@ -150,7 +154,7 @@ def plot_xyz(r: EvalResult, path: Path) -> Path:
                 s.p_est[:, i],
                 color=c,
                 lw=1,
-                label=("estimate (aligned)" if len(r.segments) == 1 else f"segment {s.segment}"),
+                label=_segment_label(r, s.segment),
             )
     for i, a in enumerate(axes):
         a.set_ylabel(f"{'xyz'[i]} [m]")
