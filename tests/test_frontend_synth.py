@@ -129,6 +129,28 @@ def test_archived_landmarks_are_re_found_where_they_were(tiny_sequence: Path) ->
     assert q_re[0] < 1.5 and q_re[1] < 4.0, (q_re, q_tr)
 
 
+def test_a_pose_below_the_callers_bar_leaves_the_tracker_as_it_was(tiny_sequence: Path) -> None:
+    """A frame tracked without a prior whose inliers stay under the caller's `min_inliers` is
+    LOST, and nothing of it stays in the tracker: no landmarks, no pose, no motion. (On a
+    rendered blackout, a 1.5 m wrong recovery refused by the pipeline had already made a
+    keyframe's landmarks at its pose, and the next frame tracked on those.)"""
+    seq = open_sequence(tiny_sequence)
+    frames = list(seq.frames())
+    fe = Frontend(seq.rig)
+    for frame in frames[:10]:
+        fe.process(frame)
+    tr = fe.tracker
+    ff = fe.extractor.extract(frames[20])
+    ids_before, T_before = tr.map.ids[: len(tr.map)].copy(), tr.last_T_world_body.copy()
+    refused = tr.track(ff, None, min_inliers=10**6)
+    assert refused.T_world_body is None and refused.track_path == "lost"
+    np.testing.assert_array_equal(tr.map.ids[: len(tr.map)], ids_before)
+    np.testing.assert_array_equal(tr.last_T_world_body, T_before)
+    accepted = tr.track(ff, None)  # the same frame under the default bar
+    assert accepted.T_world_body is not None and accepted.n_tracked >= 50
+    assert accepted.is_keyframe and len(tr.map) > ids_before.size
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["V2_03_difficult", "MH_04_difficult"])
 def test_visual_odometry_on_semi_real_replicas(

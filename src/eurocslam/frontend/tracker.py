@@ -130,13 +130,16 @@ class StereoTracker:
         T_world_body_pred: F64 | None = None,
         keyframe_allowed: bool = True,
         may_restart: bool = True,
+        min_inliers: int = 0,
     ) -> FrontendResult:
         """Track one frame. `T_world_body_pred`: the caller's prediction (the IMU's), else the
         constant-velocity model's; with `motion_prior: false`, neither: the last pose.
         `keyframe_allowed`: the caller would take this frame as a keyframe (the backend's
         minimum interval has passed); otherwise it is not made one (no new landmarks).
         `may_restart`: after `reinit_after_lost_frames` lost frames, start a new map at the
-        prediction (false while the caller relocalizes: the prediction is worthless then)."""
+        prediction (false while the caller relocalizes: the prediction is worthless then).
+        `min_inliers`: fewer pose inliers than this (or `min_tracked`) is LOST, and nothing of
+        the frame enters the map (the caller's bar for a pose found without a prior)."""
         self._t_ns = ff.t_ns
         timings = dict(ff.timings_ms)
         t0 = time.perf_counter()
@@ -154,7 +157,11 @@ class StereoTracker:
         if pred is None:  # initialised but never had a pose: cannot happen; be safe
             pred = self.last_T_world_body if self.last_T_world_body is not None else np.eye(4)
         T_world_body, inlier_rows, inlier_kps, path = self._track_local_map(
-            ff, pred, T_world_body_pred is not None, timings
+            ff,
+            pred,
+            T_world_body_pred is not None,
+            timings,
+            max(self.config.min_tracked, min_inliers),
         )
         if T_world_body is None:
             self._lost_count += 1
@@ -341,13 +348,18 @@ class StereoTracker:
         return T_opt, rows[inl], kps[inl], int(rows.size)
 
     def _track_local_map(
-        self, ff: FrameFeatures, pred: F64, have_pred: bool, timings: dict[str, float]
+        self,
+        ff: FrameFeatures,
+        pred: F64,
+        have_pred: bool,
+        timings: dict[str, float],
+        min_inliers: int,
     ) -> tuple[F64 | None, NDArray[np.intp], NDArray[np.intp], str]:
         """The pose of this frame against the local map, its inlier rows and keypoints, and the
         path that found it: `projection` (the map projected with the predicted pose, a window of
         `track_radius_deg`), `projection_wide` (3x the window), `descriptor` (no prior: the
         frame's descriptors matched against the whole local map, PnP RANSAC on the matches,
-        then the projection at that pose) or `lost`."""
+        then the projection at that pose) or `lost` (fewer than `min_inliers`)."""
         c, g, m = self.config, self.rectified, self.map
         empty = np.zeros(0, np.intp)
         if len(m) == 0 or len(ff.left) == 0:
@@ -380,16 +392,25 @@ class StereoTracker:
                 if rows2.size > rows.size:
                     T_rc, rows, kps, path = T2, rows2, kps2, "descriptor"
         if rows.size < c.min_tracked:
-            timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
-            timings["pnp"] = pnp_ms
-            return None, empty, empty, "lost"
+            return self._lost(timings, t0, pnp_ms)
         # pass 2: refined pose, tight window, every visible landmark
         T2, rows2, kps2, _ = self._match_and_optimize(ff, tree, T_rc, 0.5 * radius, sigma_all)
         if rows2.size >= rows.size * 0.8 and rows2.size >= c.min_tracked:
             T_rc, rows, kps = T2, rows2, kps2
+        if rows.size < min_inliers:
+            return self._lost(timings, t0, pnp_ms)
         timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
         timings["pnp"] = pnp_ms
         return body_T_from_rect(T_rc, self._T_body_rect0), rows, kps, path
+
+    @staticmethod
+    def _lost(
+        timings: dict[str, float], t0: float, pnp_ms: float
+    ) -> tuple[None, NDArray[np.intp], NDArray[np.intp], str]:
+        timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
+        timings["pnp"] = pnp_ms
+        empty = np.zeros(0, np.intp)
+        return None, empty, empty, "lost"
 
     def _relocalize(self, ff: FrameFeatures, T_guess_rc: F64) -> F64 | None:
         """Match frame descriptors to every local-map landmark (ratio test), PnP RANSAC."""

@@ -268,11 +268,15 @@ class SlamPipeline(Startup):
             out = self._relocalize(ff, pred)
             if out is not None:
                 return out
-        fr = self.tracker.track(ff, prior, kf_ok, may_restart=not blind)
-        # after a loss, the tracker's own recovery (no prior) must convince like a place match
-        need = self.cfg.health.min_tracked
-        if blind and self.places is not None:
-            need = max(need, self.cfg.places.min_inliers)
+        # after a loss, the tracker's own recovery (no prior) must convince at least as much as
+        # a place match; the tracker keeps nothing of a frame below that bar
+        hc = self.cfg.health
+        need = hc.min_tracked
+        if blind:
+            need = max(need, hc.recover_min_inliers)
+            if self.places is not None:
+                need = max(need, self.cfg.places.min_inliers)
+        fr = self.tracker.track(ff, prior, kf_ok, may_restart=not blind, min_inliers=need)
         tracked = fr.T_world_body is not None and (
             fr.state == TrackingState.INIT or fr.n_tracked >= need
         )
