@@ -157,13 +157,16 @@ class PlacesConfig:
     loop_agree_deg: float = 1.0
     loop_min_correction_m: float = 0.1
     loop_min_correction_deg: float = 1.0
-    # act on such a loop online (move the estimate onto the old map, the loop edge into the
-    # final batch); off: loops are recognised and reported, and closed by map reuse in the
-    # final batch. Off by default: on the full-length MH_04 replica (visual-only) the online
-    # corrections measured 0.5-1.9 deg where the drift was 0.07-0.41 deg (final ATE 19.2 mm
-    # instead of 8.1); without the far unmapped points in verification two remain, 0.5-0.9 deg
-    # against 0.07-0.15 (final 8.5 mm): a loop's pose is not yet trusted enough to act on
-    correct_loops_online: bool = False
+    # a correction needs this many verified inliers in each agreeing keyframe's match. Measured
+    # against ground truth (benchmarks/bench_loops.py): with 40-59 inliers a loop's drift is off
+    # by up to 0.5-2 deg (90th percentile; MH_03 and V1_01 stereo-inertial, MH_04 visual-only),
+    # and two consecutive keyframes can agree on the same wrong drift (1.1 deg where the
+    # estimate had drifted 0.07-0.31); with 60 or more, 0.25-0.3 deg
+    loop_correct_min_inliers: int = 60
+    # act on such a loop online: move the estimate onto the old map (the smoother restarts from
+    # the moved state, the tracker's map moves with it) and give the final batch the loop edge;
+    # off: loops are recognised and reported, and closed by map reuse in the final batch
+    correct_loops_online: bool = True
     # relocalization: lost frames query the database; lost this long without a place: reset
     relocalize_max_s: float = 10.0
     # a new segment (after a reset) is merged into the frame of an earlier one it recognises

@@ -130,7 +130,7 @@ class PlaceStage:
         self.map_points = map_points
         self.events: list[PlaceEvent] = []
         self._next_key = 0
-        self._loop_votes: list[tuple[int, F64]] = []  # (keyframe key, D) of consecutive loops
+        self._loop_votes: list[tuple[int, F64]] = []  # (inliers, D) of consecutive loops
         # (keyframe key, frame, T_frame_seg, sample) of consecutive matches
         self._merge_votes: list[tuple[int, int, F64, tuple[int, int, F64]]] = []
         self._key_of: dict[tuple[int, int], int] = {}  # (segment, keyframe index) -> key
@@ -277,17 +277,18 @@ class PlaceStage:
             self._event("loop", view, segment, m, T_frame_query[:3, 3], 0.0, 0.0)
             return None
         D = inv_T(T_frame_seg) @ T_frame_query @ inv_T(T_seg_query)
-        self._loop_votes = [*self._loop_votes, (view.key, D)][-c.loop_consistency :]
-        if len(self._loop_votes) < c.loop_consistency or not self._agree(
-            [d for _, d in self._loop_votes]
-        ):
+        votes = [*self._loop_votes, (m.n_inliers, D)][-c.loop_consistency :]
+        self._loop_votes = votes
+        if len(votes) < c.loop_consistency or not self._agree([d for _, d in votes]):
             return None
         self._loop_votes = []
         dm, dd = _size(D)
         p_q = (T_frame_seg @ T_seg_query)[:3, 3]
         fix = LoopFix(m, D, inv_T(book.in_frame(m.key)) @ T_frame_query)
         small = dm < c.loop_min_correction_m and dd < c.loop_min_correction_deg
-        if small or not c.correct_loops_online:
+        # consecutive keyframes matched with few inliers can agree on the same wrong drift
+        coarse = min(n for n, _ in votes) < c.loop_correct_min_inliers
+        if small or coarse or not c.correct_loops_online:
             self._event("loop", view, segment, m, p_q, 0.0, 0.0)
             return None
         self._event("loop", view, segment, m, p_q, dm, dd)

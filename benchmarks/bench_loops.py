@@ -1,0 +1,168 @@
+#!/usr/bin/env python3
+"""How well a loop recognised by appearance measures the drift it would correct.
+
+Each replica (`bench_slam.py`'s, rendered from the real EuRoC motion, exact ground truth) is run
+in this process with the pipeline's place stage watched: for every loop the recognizer verifies
+online (`PlaceStage.loop`), the *measured* correction D (the world-frame move that puts the
+query keyframe's current estimate where the verified match says it is, relative to the
+candidate keyframe's current estimate) is compared with the *true* one (the same move computed
+from the ground-truth relative pose of the two keyframes). Sizes are the rotation angle and the
+displacement of the query's position. Per bucket of verified inliers: how many loops, the
+median and 90th percentile of |measured - true|, and the median true drift; then the loops the
+run corrected online, and the final and online ATE (one SE(3) alignment).
+
+    .venv/bin/python benchmarks/bench_loops.py --sequences MH_04 --no-imu
+    .venv/bin/python benchmarks/bench_loops.py --sequences MH_04 V2_02 --no-imu --config FILE
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from eurocslam.config import config_from_dict
+from eurocslam.dataset import open_sequence
+from eurocslam.eval.align import align
+from eurocslam.geometry import F64, inv_T, so3_log
+from eurocslam.pipeline import places as place_stage
+from eurocslam.pipeline.slam import SlamPipeline
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_slam  # the replicas are shared
+
+BUCKETS = [(40, 60), (60, 100), (100, 150), (150, 10**6)]
+
+
+def _size(D: F64, p: F64) -> tuple[float, float]:
+    """(degrees, metres) of a world-frame move D at the point p."""
+    return (
+        float(np.degrees(np.linalg.norm(so3_log(D[:3, :3])))),
+        float(np.linalg.norm(D[:3, :3] @ p + D[:3, 3] - p)),
+    )
+
+
+def run(seq_path: Path, cfg: dict[str, object]) -> tuple[list[dict[str, float]], dict[str, float]]:
+    seq = open_sequence(seq_path, quiet=True)
+    gt = seq.groundtruth
+    assert gt is not None
+    T_gt = gt.T_world_body()
+
+    def gt_pose(t_ns: int) -> F64:
+        return T_gt[int(np.clip(np.searchsorted(gt.t_ns, t_ns), 0, len(gt) - 1))]
+
+    loops: list[dict[str, float]] = []
+    loop = place_stage.PlaceStage.loop
+    find = place_stage.PlaceStage._find
+
+    def watched_loop(self, view, segment, T_seg_query):  # type: ignore[no-untyped-def]
+        seen = []
+
+        def watched_find(v, accept):  # type: ignore[no-untyped-def]
+            m = find(self, v, accept)
+            seen.append(m)
+            return m
+
+        self._find = watched_find
+        try:
+            fix = loop(self, view, segment, T_seg_query)
+        finally:
+            del self._find
+        m = seen[-1] if seen else None
+        if m is not None and self.book.keyframes[m.key].segment == segment:
+            ref = self.book.keyframes[m.key]
+            T_cand = self.book.in_frame(m.key)
+            measured = m.T_world_query @ inv_T(T_seg_query)
+            true = T_cand @ inv_T(gt_pose(ref.t_ns)) @ gt_pose(view.t_ns) @ inv_T(T_seg_query)
+            p = T_seg_query[:3, 3]
+            err_deg, err_m = _size(measured @ inv_T(true), p)
+            true_deg, true_m = _size(true, p)
+            loops.append(
+                {
+                    "inliers": m.n_inliers,
+                    "err_deg": err_deg,
+                    "err_m": err_m,
+                    "true_deg": true_deg,
+                    "true_m": true_m,
+                    "corrected": float(fix is not None),
+                }
+            )
+        return fix
+
+    place_stage.PlaceStage.loop = watched_loop  # type: ignore[method-assign]
+    try:
+        res = SlamPipeline(seq, config_from_dict(cfg)).run()
+    finally:
+        place_stage.PlaceStage.loop = loop  # type: ignore[method-assign]
+    ate = {}
+    for name, t, T in (
+        ("online", res.online_t_ns, res.online_T),
+        ("final", res.final_t_ns, res.final_T),
+    ):
+        G = gt.p[np.clip(np.searchsorted(gt.t_ns, t), 0, len(gt) - 1)]
+        a = align("se3", G, T[:, :3, 3])
+        e = np.linalg.norm(G - (T[:, :3, 3] @ a.R.T + a.t), axis=1)
+        ate[name] = float(np.sqrt(np.mean(e**2)))
+    return loops, ate
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sequences", nargs="+", default=["MH_04"], choices=list(bench_slam.SEQUENCES))
+    ap.add_argument("--no-imu", action="store_true", help="visual-only runs")
+    ap.add_argument("--config", type=Path, help="YAML config (e.g. places.correct_loops_online)")
+    ap.add_argument("--duration", type=float, default=0.0, help="first S seconds (0: full)")
+    ap.add_argument(
+        "--cache", type=Path, default=Path(tempfile.gettempdir()) / "eurocslam_replicas"
+    )
+    args = ap.parse_args()
+    cfg = yaml.safe_load(args.config.read_text()) if args.config else {}
+    cfg = cfg or {}
+    if args.no_imu:
+        cfg["mode"] = "visual-only"
+    mode = cfg.get("mode", "auto")
+    print(f"# loops measured against ground truth (mode {mode}, config {args.config})")
+    print(
+        "\n| sequence | inliers | loops | error median [deg / cm] | error p90 [deg / cm] "
+        "| true drift median [deg / cm] |\n|---|---|---|---|---|---|"
+    )
+    tails = []
+    for name in args.sequences:
+        duration = args.duration if args.duration > 0 else None
+        path = bench_slam.make_replica(name, args.cache, duration, 0)
+        loops, ate = run(path, cfg)
+        for lo, hi in BUCKETS:
+            b = [r for r in loops if lo <= r["inliers"] < hi]
+            if not b:
+                continue
+            e_deg = np.array([r["err_deg"] for r in b])
+            e_cm = 100 * np.array([r["err_m"] for r in b])
+            t_deg = np.array([r["true_deg"] for r in b])
+            t_cm = 100 * np.array([r["true_m"] for r in b])
+            label = f"{lo}-{hi - 1}" if hi < 10**6 else f">= {lo}"
+            print(
+                f"| {name} | {label} | {len(b)} | {np.median(e_deg):.2f} / {np.median(e_cm):.1f} "
+                f"| {np.percentile(e_deg, 90):.2f} / {np.percentile(e_cm, 90):.1f} "
+                f"| {np.median(t_deg):.2f} / {np.median(t_cm):.1f} |",
+                flush=True,
+            )
+        fixed = [r for r in loops if r["corrected"]]
+        tails.append(
+            f"{name}: {len(loops)} loops, {len(fixed)} corrected online"
+            + "".join(
+                f"; {r['true_deg']:.2f} deg / {100 * r['true_m']:.1f} cm of drift, "
+                f"left {r['err_deg']:.2f} / {100 * r['err_m']:.1f} ({r['inliers']:.0f} inliers)"
+                for r in fixed
+            )
+            + f"; ATE final {1e3 * ate['final']:.1f} mm, online {1e3 * ate['online']:.1f} mm"
+        )
+    print("\n" + "\n".join(tails))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
