@@ -196,10 +196,13 @@ def run(args: argparse.Namespace) -> int:
 
 def _warn(results: list[EvalResult]) -> None:
     """Warnings about results: uncertain alignment rotation, skipped segments."""
+    from eurocslam.eval.align import UNCERTAIN_ROTATION_FIT_DEG
+
     for r in results:
         for seg in r.segments if r.config.align in ("se3", "sim3") else ():
             sigma = seg.rotation_fit_sigma_deg()
-            if sigma > 1.0:
+            # (a fit that took its rotation from the orientations says so in the report)
+            if sigma > UNCERTAIN_ROTATION_FIT_DEG and not seg.alignment.note:
                 print(
                     f"eurocslam eval: warning: {r.label}, segment {seg.segment}: the matched "
                     f"positions barely leave a straight line, so the {r.config.align} fit's "

@@ -37,6 +37,7 @@ class Alignment:
     t: F64
     s: float
     n_used: int
+    note: str = ""  # how the fit departed from its mode (a rotation from orientations)
 
     @property
     def yaw_deg(self) -> float:
@@ -63,6 +64,7 @@ class Alignment:
             "yaw_deg": self.yaw_deg,
             "rotation": self.R.tolist(),
             "translation": self.t.tolist(),
+            **({"note": self.note} if self.note else {}),
         }
 
 
@@ -89,6 +91,30 @@ def umeyama(x: F64, y: F64, with_scale: bool) -> tuple[F64, F64, float]:
     return R, t, s
 
 
+# a position fit whose rotation is this uncertain (1-sigma) says little about it: `eurocslam
+# eval` warns; from UNDETERMINED on (a platform at rest: ~16 deg; a near-straight take-off:
+# ~19 deg) the fit takes its rotation from the orientations when it has them
+UNCERTAIN_ROTATION_FIT_DEG = 1.0
+UNDETERMINED_ROTATION_FIT_DEG = 10.0
+
+
+def rotation_fit_sigma_deg(p_ref: F64, residual_rms: float) -> float:
+    """How well positions pin down a fit's rotation about their main direction: the fit's RMS
+    residual over their spread across that direction (1-sigma for independent errors). Large on
+    a (nearly) straight path or a platform at rest."""
+    d = np.linalg.svd(p_ref - p_ref.mean(axis=0), compute_uv=False)
+    return float(np.degrees(np.arctan2(residual_rms, float(np.hypot(d[1], d[2])))))
+
+
+def rotation_from_orientations(R_ref: F64, R_est: F64) -> F64:
+    """The rotation R that best maps estimate orientations onto reference ones (R_ref ~= R
+    R_est, chordal least squares)."""
+    u, _, vt = np.linalg.svd(np.einsum("nij,nkj->ik", R_ref, R_est))
+    S = np.eye(3)
+    S[2, 2] = np.sign(np.linalg.det(u @ vt))
+    return np.asarray(u @ S @ vt, dtype=np.float64)
+
+
 def posyaw(x: F64, y: F64) -> tuple[F64, F64]:
     """Closed-form yaw + translation with `y ~= Rz(yaw) x + t` (least squares)."""
     mx, my = x.mean(axis=0), y.mean(axis=0)
@@ -113,10 +139,16 @@ def align(
     T_ref0: F64 | None = None,
     T_est0: F64 | None = None,
     first_n: int | None = None,
+    R_ref: F64 | None = None,
+    R_est: F64 | None = None,
 ) -> Alignment:
     """Fit the alignment of matched estimate positions onto reference positions.
 
-    `T_ref0`/`T_est0` (first matched poses, 4x4) are needed for `origin`.
+    `T_ref0`/`T_est0` (first matched poses, 4x4) are needed for `origin`. With the matched
+    orientations (`R_ref`, `R_est`, (N, 3, 3)), an `se3`/`sim3` fit whose positions cannot fix
+    the rotation (`rotation_fit_sigma_deg` above `UNDETERMINED_ROTATION_FIT_DEG`: a platform at
+    rest, a straight line) takes the rotation from the orientations instead, and the scale 1;
+    the alignment's `note` says so.
     """
     n = p_ref.shape[0]
     if mode not in ALIGN_MODES:
@@ -138,5 +170,18 @@ def align(
     if mode == "posyaw":
         R, t = posyaw(x, y)
         return Alignment("posyaw", R, t, 1.0, k)
-    R, t, s = umeyama(x, y, with_scale=(mode == "sim3"))
-    return Alignment(mode, R, t, s, k)
+    try:
+        R, t, s = umeyama(x, y, with_scale=(mode == "sim3"))
+        residual = float(np.sqrt(np.mean(np.sum((y - (s * x @ R.T + t)) ** 2, axis=1))))
+        sigma = rotation_fit_sigma_deg(y, residual)
+        if R_ref is None or R_est is None or sigma < UNDETERMINED_ROTATION_FIT_DEG:
+            return Alignment(mode, R, t, s, k)
+        why = f"the positions pin it down to ~{sigma:.0f} deg"
+    except EvalError:  # exactly collinear or static positions
+        if R_ref is None or R_est is None:
+            raise
+        why = "the positions do not fix it"
+    R = rotation_from_orientations(R_ref[:k], R_est[:k])
+    t = y.mean(axis=0) - R @ x.mean(axis=0)
+    note = f"rotation from the orientations: {why}" + (", scale 1" if mode == "sim3" else "")
+    return Alignment(mode, R, t, 1.0, k, note)

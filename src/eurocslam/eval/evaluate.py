@@ -8,7 +8,8 @@ the ground-truth time span during which the estimate has poses (gaps longer than
 
 RPE over distance uses lengths that are fractions of the ground-truth path length over the
 matched poses (all segments together); for a single segment this is rpg's "10..50 % of the
-trajectory length". Explicit lengths in metres override the fractions.
+trajectory length", from 0.1 m up (shorter ones measure noise, not drift). Explicit lengths in
+metres override the fractions.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from eurocslam.errors import EvalError
-from eurocslam.eval.align import Alignment, align
+from eurocslam.eval.align import Alignment, align, rotation_fit_sigma_deg
 from eurocslam.eval.associate import Association, associate
 from eurocslam.eval.metrics import (
     RpeLength,
@@ -37,6 +38,10 @@ from eurocslam.trajectory import Trajectory
 
 I64 = NDArray[np.int64]
 DEFAULT_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5)
+# RPE lengths taken as fractions of the path are kept only from this length up: over shorter
+# distances the per-pose noise (millimetres), not drift, is the error (a drone at rest: "drift"
+# of 44 % over 2 mm)
+MIN_FRACTION_LENGTH_M = 0.1
 
 
 @dataclass(frozen=True)
@@ -100,15 +105,10 @@ class SegmentEval:
         }
 
     def rotation_fit_sigma_deg(self) -> float:
-        """How well the positions pin down the alignment's rotation about the path's main
-        direction: ATE RMSE over the spread of the matched positions across that direction
-        (1-sigma for independent errors). Large on a (nearly) straight path: then an SE(3) or
-        Sim(3) fit may turn the estimate about the path and ATE rotation says little."""
-        c = self.p_ref - self.p_ref.mean(axis=0)
-        d = np.linalg.svd(c, compute_uv=False)
-        across = float(np.hypot(d[1], d[2]))
-        rmse = float(np.sqrt(np.mean(self.ate_t**2)))
-        return float(np.degrees(np.arctan2(rmse, across)))
+        """How well the positions pin down the alignment's rotation (`align.
+        rotation_fit_sigma_deg` with this segment's ATE): large on a (nearly) straight path,
+        where an SE(3) or Sim(3) fit may turn the estimate about the path."""
+        return rotation_fit_sigma_deg(self.p_ref, float(np.sqrt(np.mean(self.ate_t**2))))
 
 
 @dataclass(frozen=True)
@@ -185,6 +185,8 @@ def _eval_segment(
         make_T(R_ref[0], p_ref[0]),
         make_T(R_e[0], p_e[0]),
         cfg.align_first,
+        R_ref,
+        R_e,
     )
     p_est, R_est = al.apply(p_e, R_e)
     ate_t, ate_r = ate_errors(p_ref, R_ref, p_est, R_est)
@@ -291,7 +293,9 @@ def evaluate(
     if cfg.rpe_lengths_m:
         lengths: list[tuple[float | None, float]] = [(None, float(L)) for L in cfg.rpe_lengths_m]
     else:
-        lengths = [(f, f * total_len) for f in cfg.rpe_fractions if f * total_len > 0]
+        lengths = [
+            (f, f * total_len) for f in cfg.rpe_fractions if f * total_len >= MIN_FRACTION_LENGTH_M
+        ]
     for s in segs:
         _with_lengths(s, lengths, cfg.rpe_tol)
     pooled = [pool_lengths([s.lengths[k] for s in segs]) for k in range(len(lengths))]

@@ -156,6 +156,8 @@ def evaluate_joint(
             make_T(R_ref0, refs[0][0][0]),
             make_T(R_est0, ests[0][0][0]),
             cfg.align_first,
+            np.concatenate([r[1] for r in refs]),
+            np.concatenate([e[1] for e in ests]),
         )
     except EvalError as err:
         raise EvalError(f"joint alignment of {len(pairs)} sessions: {err}") from None

@@ -73,6 +73,8 @@ def _align_text(r: EvalResult) -> str:
             a += f", scale {al.s:.4f}"
         if al.mode in ("posyaw", "se3", "sim3", "origin"):
             a += f", yaw {al.yaw_deg:+.2f} deg"
+        if al.note:
+            a += f" ({al.note})"
     return a
 
 
@@ -93,6 +95,11 @@ def markdown(r: EvalResult, title: str | None = None) -> str:
     )
     if r.drift_pct is not None:
         out.append(f"- drift: {r.drift_pct:.2f} % of distance travelled (mean over RPE lengths)")
+    elif not r.lengths:
+        out.append(
+            f"- drift: none measured (the matched ground-truth path, "
+            f"{sum(s.gt_length_m for s in r.segments):.3f} m, has no RPE length of 0.1 m or more)"
+        )
     out += [
         "",
         "| metric | rmse | mean | median | std | min | max | n |",
