@@ -92,8 +92,9 @@ def umeyama(x: F64, y: F64, with_scale: bool) -> tuple[F64, F64, float]:
 
 
 # a position fit whose rotation is this uncertain (1-sigma) says little about it: `eurocslam
-# eval` warns; from UNDETERMINED on (a platform at rest: ~16 deg; a near-straight take-off:
-# ~19 deg) the fit takes its rotation from the orientations when it has them
+# eval` warns (a 1.2 m take-off, nearly straight: ~10 deg); from UNDETERMINED on (the real
+# V1_01 excerpt, a drone at rest: 16-18 deg) the fit takes its rotation from the orientations
+# when it has them
 UNCERTAIN_ROTATION_FIT_DEG = 1.0
 UNDETERMINED_ROTATION_FIT_DEG = 10.0
 
