@@ -56,6 +56,17 @@ class EvalConfig:
     rpe_tol: float = 0.1  # accepted |travelled - L| / L
     coverage_gap_s: float = 1.0
 
+    def associate(self, ref: Trajectory, est: Trajectory) -> Association:
+        """Pairs of `ref` and `est` poses under this configuration's window and offset."""
+        return associate(
+            ref.t_ns,
+            est.t_ns,
+            round(self.max_diff_s * NS_PER_S),
+            round(self.offset_s * NS_PER_S),
+            ref.name or "reference",
+            est.name or "estimate",
+        )
+
     def to_dict(self) -> dict[str, object]:
         return {
             "align": self.align,
@@ -167,14 +178,7 @@ class EvalResult:
 def _eval_segment(
     sid: int, ref: Trajectory, R_ref_all: F64, est: Trajectory, cfg: EvalConfig
 ) -> SegmentEval:
-    assoc = associate(
-        ref.t_ns,
-        est.t_ns,
-        round(cfg.max_diff_s * NS_PER_S),
-        round(cfg.offset_s * NS_PER_S),
-        ref.name or "reference",
-        est.name or "estimate",
-    )
+    assoc = cfg.associate(ref, est)
     ir, ie = assoc.idx_ref, assoc.idx_est
     p_ref, R_ref = ref.p[ir], R_ref_all[ir]
     p_e, R_e = est.p[ie], est.rotations()[ie]

@@ -26,11 +26,10 @@ import numpy as np
 
 from eurocslam.errors import EvalError
 from eurocslam.eval.align import Alignment, align
-from eurocslam.eval.associate import Association, associate
+from eurocslam.eval.associate import Association
 from eurocslam.eval.evaluate import EvalConfig, EvalResult, evaluate
 from eurocslam.eval.metrics import Stats, ate_errors
 from eurocslam.geometry import F64, make_T
-from eurocslam.timebase import NS_PER_S
 from eurocslam.trajectory import Trajectory
 
 # the joint ATE over the sessions' own above this factor suggests the frames are not shared
@@ -132,14 +131,7 @@ def evaluate_joint(
         try:
             own.append(evaluate(ref, est, cfg, label))
             r, e = _sorted(ref), _sorted(est)
-            a = associate(
-                r.t_ns,
-                e.t_ns,
-                round(cfg.max_diff_s * NS_PER_S),
-                round(cfg.offset_s * NS_PER_S),
-                ref.name or "reference",
-                est.name or "estimate",
-            )
+            a = cfg.associate(r, e)
         except EvalError as err:
             raise EvalError(f"session {k}: {err}") from None
         assoc.append(a)
