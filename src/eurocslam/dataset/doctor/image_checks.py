@@ -41,8 +41,26 @@ class PngHeader:
     colour_type: int = 0
     problem: str | None = None
 
+    def format_kinds(self) -> list[str]:
+        """How the image differs from 8-bit mono ("16-bit", "RGB", ...; the reader converts
+        it), empty for 8-bit mono."""
+        kinds = [f"{self.bit_depth}-bit"] if self.bit_depth != 8 else []
+        if self.colour_type != 0:
+            kinds.append(COLOUR_TYPES.get(self.colour_type, "colour"))
+        return kinds
+
 
 COLOUR_TYPES = {0: "grey", 2: "RGB", 3: "palette", 4: "grey+alpha", 6: "RGBA"}
+
+
+def is_format_kind(kind: str) -> bool:
+    """A kind from `PngHeader.format_kinds` (not a size or an unreadable file)."""
+    return kind.endswith("-bit") or kind in COLOUR_TYPES.values() or kind == "colour"
+
+
+def format_message(kind: str, names: list[str]) -> str:
+    ex = ", ".join(names[:MAX_EXAMPLES])
+    return f"{len(names)} image(s) are {kind}, not 8-bit mono: {ex}; the reader converts them"
 
 
 def read_png_header(path: Path) -> PngHeader:
@@ -120,10 +138,8 @@ def check_images(
         if calib is not None and (h.width, h.height) != calib.resolution:
             probs.setdefault(f"size {h.width}x{h.height}", []).append(name)
             continue
-        if h.bit_depth != 8:
-            probs.setdefault(f"{h.bit_depth}-bit", []).append(name)
-        if h.colour_type != 0:
-            probs.setdefault(COLOUR_TYPES.get(h.colour_type, "colour"), []).append(name)
+        for kind in h.format_kinds():
+            probs.setdefault(kind, []).append(name)
         usable.append(name)
     for kind, names in probs.items():
         ex = ", ".join(names[:MAX_EXAMPLES])
@@ -137,13 +153,8 @@ def check_images(
                 folder,
                 key="resolution",
             )
-        elif kind.endswith("-bit") or kind in COLOUR_TYPES.values() or kind == "colour":
-            found.add(
-                WARNING,
-                "images",
-                f"{len(names)} image(s) are {kind}, not 8-bit mono: {ex}; the reader converts them",
-                folder,
-            )
+        elif is_format_kind(kind):
+            found.add(WARNING, "images", format_message(kind, names), folder)
         else:
             found.add(
                 WARNING,

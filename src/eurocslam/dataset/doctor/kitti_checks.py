@@ -17,9 +17,10 @@ import numpy as np
 from eurocslam.dataset.calib import CameraCalib, check_camera, check_stereo_pair
 from eurocslam.dataset.doctor.csv_scan import MAX_EXAMPLES
 from eurocslam.dataset.doctor.image_checks import (
-    COLOUR_TYPES,
     ImageState,
     decode_sample,
+    format_message,
+    is_format_kind,
     read_png_header,
 )
 from eurocslam.dataset.doctor.report import (
@@ -197,10 +198,8 @@ class _KittiDoctor:
             if (h.width, h.height) != self.size:
                 probs.setdefault(f"size {h.width}x{h.height}", []).append(name)
                 continue
-            if h.bit_depth != 8:
-                probs.setdefault(f"{h.bit_depth}-bit", []).append(name)
-            if h.colour_type != 0:
-                probs.setdefault(COLOUR_TYPES.get(h.colour_type, "colour"), []).append(name)
+            for kind in h.format_kinds():
+                probs.setdefault(kind, []).append(name)
             usable.append(name)
         for kind, bad in probs.items():
             ex = ", ".join(bad[:MAX_EXAMPLES])
@@ -216,14 +215,9 @@ class _KittiDoctor:
                     "the reader skips them",
                     folder,
                 )
-            elif kind.endswith("-bit") or kind in COLOUR_TYPES.values() or kind == "colour":
-                self.add(
-                    WARNING if kind.endswith("-bit") else INFO,
-                    "images",
-                    f"{len(bad)} image(s) are {kind}, not 8-bit mono: {ex}; the reader "
-                    "converts them",
-                    folder,
-                )
+            elif is_format_kind(kind):  # colour is how KITTI's image_2/3 come: a note
+                sev = WARNING if kind.endswith("-bit") else INFO
+                self.add(sev, "images", format_message(kind, bad), folder)
             else:
                 self.add(
                     WARNING,
