@@ -277,9 +277,7 @@ class SlamPipeline(Startup):
             if self.places is not None:
                 need = max(need, self.cfg.places.min_inliers)
         fr = self.tracker.track(ff, prior, kf_ok, may_restart=not blind, min_inliers=need)
-        tracked = fr.T_world_body is not None and (
-            fr.state == TrackingState.INIT or fr.n_tracked >= need
-        )
+        tracked = fr.T_world_body is not None  # (a tracked pose has `need` inliers)
         if tracked and fr.T_world_body is not None and not blind:
             v = self._plausible(t, pred.T_world_body, fr.T_world_body)
             if not v.ok:
