@@ -67,7 +67,10 @@ def test_workers_extract_what_inline_extraction_does(scene: Scene, frames) -> No
         _same(ff, fe.extractor.extract(fr))
         assert "decode" in ff.timings_ms
     assert [ff.problem for _, ff in got][3:8] == ["missing", None, "blank", None, "size"]
-    assert len(fe.worker_peak_rss_mb) == 2 and all(m > 10 for m in fe.worker_peak_rss_mb)
+    cost = fe.cost
+    assert len(cost.worker_peak_rss_mb) == 2 and all(m > 10 for m in cost.worker_peak_rss_mb)
+    assert len(cost.worker_cpu_s) == 2 and all(c > 0 for c in cost.worker_cpu_s)
+    assert cost.reader_cpu_s > 0
     assert _shm_names() <= before  # the shared memory is gone
 
 
@@ -255,7 +258,7 @@ scene = Scene.build(SynthSpec.tiny(seed=2))
 frames = [StereoFrame(int(scene.cam_t_ns[k]), scene.image(k, 0)[0], scene.image(k, 1)[0])
           for k in range(3)]
 fe = FeatureStream(scene.rig, FrontendConfig())
-print(len(list(fe(frames))), len(fe.worker_peak_rss_mb))
+print(len(list(fe(frames))), len(fe.cost.worker_peak_rss_mb))
 """
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr

@@ -74,6 +74,11 @@ def test_outputs_written(run_out: Path) -> None:
     assert summary["frames_with_pose"] == summary["frames"] == len(on)
     assert summary["init_modes"] == ["static"]
     assert {"orb", "tracking", "backend", "output"} <= set(summary["timings"])
+    cpu = summary["cpu_by_thread"]  # the run's CPU split by thread adds up to its CPU time
+    assert cpu["tracking"] > 0 and len(cpu["extraction_workers"]) == 2 and cpu["reader"] > 0
+    total = cpu["tracking"] + sum(cpu["extraction_workers"]) + cpu["reader"] + cpu["other"]
+    assert total == pytest.approx(summary["cpu_s"], abs=0.01)
+    assert summary["realtime_bounds"]["cores"] >= summary["realtime_factor"] * 0.95
     (check,) = summary["imu_check"]  # the final batch's IMU check, one per segment
     assert set(check) == {"ratio", "accel_scale", "ratio_after"}
     assert "final batch: " in (run_out / "summary.txt").read_text()
@@ -124,6 +129,28 @@ def test_missing_sequence_is_a_clean_error(
     rc = main(["run", str(tmp_path / "nope"), "-o", str(tmp_path / "o")])
     assert rc == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_summary_splits_the_cpu_time_by_thread() -> None:
+    """Where the CPU went, and the real-time factor it allows: 100 s of data at 90 s of CPU on
+    2 cores allows 2.22x; the tracking thread's 40 s alone, 2.5x."""
+    s = RunSummary(duration_s=100.0, cpu_s=90.0, tracking_cpu_s=40.0, cores=2)
+    s.worker_cpu_s, s.reader_cpu_s = [20.0, 19.0], 6.0
+    assert s.other_cpu_s == pytest.approx(5.0)
+    assert s.realtime_bounds() == pytest.approx((100 / 45, 2.5))
+    cpu, bound = [x for x in s.lines() if x.startswith(("CPU s by", "at this CPU"))]
+    assert cpu == (
+        "CPU s by thread: tracking thread 40.0, extraction workers 20.0 + 19.0, "
+        "frame reader 6.0, other threads 5.0"
+    )
+    assert bound.endswith("at most 2.22 on 2 core(s) and 2.50 for the tracking thread")
+    d = s.to_dict()
+    assert d["cpu_by_thread"]["extraction_workers"] == [20.0, 19.0]
+    assert d["realtime_bounds"] == {"cores": 2.222, "tracking_thread": 2.5}
+    # not measured (a summary built elsewhere): no lines, nulls in the JSON
+    empty = RunSummary(duration_s=1.0, cpu_s=1.0)
+    assert not [x for x in empty.lines() if x.startswith("CPU s by")]
+    json.dumps(empty.to_dict(), allow_nan=False)
 
 
 def test_summary_reports_the_imu_check() -> None:

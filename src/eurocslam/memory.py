@@ -1,9 +1,18 @@
-"""Peak memory of the current process."""
+"""What the current process may use and has used: its cores, its peak memory."""
 
 from __future__ import annotations
 
 import math
+import os
 import sys
+
+
+def usable_cores() -> int:
+    """The CPU cores this process may run on (its affinity where the platform has one)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
 
 
 def peak_rss_mb() -> float:

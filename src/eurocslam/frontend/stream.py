@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 
 from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import StereoFrame
@@ -18,13 +19,24 @@ from eurocslam.frontend.extraction import Extractor, FrameFeatures
 logger = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class ExtractionCost:
+    """What a stream's extraction cost outside the caller's thread: each worker process's peak
+    memory and CPU time, and the reader thread's CPU time (reading and decoding the images).
+    Empty when the stream ran inline."""
+
+    worker_peak_rss_mb: tuple[float, ...] = ()
+    worker_cpu_s: tuple[float, ...] = ()
+    reader_cpu_s: float = 0.0
+
+
 class FeatureStream:
-    """Extraction for one rig and configuration; `worker_peak_rss_mb` after a stream ends."""
+    """Extraction for one rig and configuration; `cost` after a stream ends."""
 
     def __init__(self, rig: StereoRig, config: FrontendConfig) -> None:
         self.extractor = Extractor(rig, config)
         self.config = config
-        self.worker_peak_rss_mb: list[float] = []  # of the last stream's extraction workers
+        self.cost = ExtractionCost()  # of the last stream
 
     def __call__(
         self, frames: Iterable[StereoFrame]
@@ -50,4 +62,6 @@ class FeatureStream:
         try:
             yield from workers.stream(frames)
         finally:
-            self.worker_peak_rss_mb = workers.peak_rss_mb
+            self.cost = ExtractionCost(
+                tuple(workers.peak_rss_mb), tuple(workers.cpu_s), workers.reader_cpu_s
+            )

@@ -95,9 +95,10 @@ class _Ready:
 
 @dataclass(frozen=True)
 class _Done:
-    """A worker's last message, after the None that ends it."""
+    """A worker's last message, after the None that ends it: what the worker cost."""
 
     peak_rss_mb: float
+    cpu_s: float  # the worker process's CPU time (user + system)
 
 
 @dataclass(frozen=True)
@@ -129,7 +130,7 @@ def _worker_main(conn: Connection) -> None:
                 conn.send(_WorkerFailure(traceback.format_exc()))
                 return
             conn.send(ff)
-        conn.send(_Done(peak_rss_mb()))
+        conn.send(_Done(peak_rss_mb(), time.process_time()))
     except (EOFError, OSError):
         pass  # the parent went away
     finally:
@@ -190,7 +191,10 @@ class ExtractionWorkers:
         for s in range(n_slots):
             self._free.put(s)
         self._stop = threading.Event()
-        self.peak_rss_mb: list[float] = []  # per worker, known once the stream has ended
+        # what the stream cost, known once it has ended: per worker, and the reader thread's CPU
+        self.peak_rss_mb: list[float] = []
+        self.cpu_s: list[float] = []
+        self.reader_cpu_s = 0.0
         self._procs: list[subprocess.Popen[bytes]] = []
         # one socket pair per worker: tasks go out from the reader thread, features come back
         # to the caller (a socket buffers a frame's features, so a worker can work ahead)
@@ -325,6 +329,8 @@ class ExtractionWorkers:
             self._put(jobs, _End())
         except BaseException as e:  # the source's errors (bad files, ...) reach the caller
             self._put(jobs, _End(e))
+        finally:
+            self.reader_cpu_s = time.thread_time()
 
     def _take_slot(self) -> int | None:
         """A free image slot, or None once the stream is stopping."""
@@ -351,7 +357,9 @@ class ExtractionWorkers:
             with contextlib.suppress(OSError, ValueError):
                 conn.send(None)
         for conn in self._conns:
-            self.peak_rss_mb.append(_last_word(conn))
+            done = _last_word(conn)
+            self.peak_rss_mb.append(done.peak_rss_mb)
+            self.cpu_s.append(done.cpu_s)
         for p in self._procs:
             try:
                 p.wait(timeout=2)
@@ -377,14 +385,14 @@ def _not_started(proc: subprocess.Popen[bytes]) -> OSError:
     )
 
 
-def _last_word(conn: Connection) -> float:
-    """A worker's peak RSS from its `_Done`, skipping features nobody asked for (a stream
-    closed early); NaN if it does not answer."""
+def _last_word(conn: Connection) -> _Done:
+    """A worker's `_Done`, skipping features nobody asked for (a stream closed early); NaNs if
+    it does not answer."""
     try:
         while conn.poll(2.0):
             msg = conn.recv()
             if isinstance(msg, _Done):
-                return msg.peak_rss_mb
+                return msg
     except (EOFError, OSError, pickle.UnpicklingError):
         pass
-    return float("nan")
+    return _Done(float("nan"), float("nan"))

@@ -57,6 +57,12 @@ class RunSummary:
     cpu_s: float = 0.0  # CPU time of the process (every thread) and its workers
     peak_rss_mb: float = math.nan  # this process's peak resident memory
     worker_peak_rss_mb: list[float] = field(default_factory=list)  # extraction workers'
+    # CPU time by thread: the one running the pipeline (tracking, backend, places, final batch),
+    # the extraction workers (processes) and the frame reader; NaN / empty: not measured
+    tracking_cpu_s: float = math.nan
+    worker_cpu_s: list[float] = field(default_factory=list)
+    reader_cpu_s: float = math.nan
+    cores: int = 0  # CPU cores the run could use
     duration_s: float = 0.0
 
     def add_time(self, stage: str, ms: float) -> None:
@@ -69,6 +75,38 @@ class RunSummary:
     @property
     def realtime_factor(self) -> float:
         return self.duration_s / self.wall_s if self.wall_s > 0 else 0.0
+
+    @property
+    def other_cpu_s(self) -> float:
+        """CPU time of the threads not measured one by one (the MCAP writer, ...)."""
+        measured = self.tracking_cpu_s + sum(self.worker_cpu_s) + self.reader_cpu_s
+        return max(0.0, self.cpu_s - measured)
+
+    def realtime_bounds(self) -> tuple[float, float]:
+        """The real-time factors this CPU time allows: all cores busy all the time, and the
+        tracking thread busy all the time (it cannot use a second core)."""
+        d = self.duration_s
+
+        def bound(cpu_s: float) -> float:
+            return d / cpu_s if cpu_s > 0 else math.nan
+
+        return bound(self.cpu_s / max(self.cores, 1)), bound(self.tracking_cpu_s)
+
+    def _cpu_lines(self) -> list[str]:
+        if math.isnan(self.tracking_cpu_s):
+            return []
+        parts = [f"tracking thread {self.tracking_cpu_s:.1f}"]
+        if self.worker_cpu_s:
+            parts.append("extraction workers " + " + ".join(f"{c:.1f}" for c in self.worker_cpu_s))
+        if not math.isnan(self.reader_cpu_s):
+            parts.append(f"frame reader {self.reader_cpu_s:.1f}")
+        parts.append(f"other threads {self.other_cpu_s:.1f}")
+        by_cores, by_thread = self.realtime_bounds()
+        return [
+            "CPU s by thread: " + ", ".join(parts),
+            f"at this CPU time the real-time factor is at most {by_cores:.2f} on {self.cores} "
+            f"core(s) and {by_thread:.2f} for the tracking thread",
+        ]
 
     def _place_lines(self) -> list[str]:
         if not self.place_db:
@@ -151,6 +189,16 @@ class RunSummary:
             "cpu_s": round(self.cpu_s, 3),
             "peak_rss_mb": _finite(self.peak_rss_mb),
             "worker_peak_rss_mb": [_finite(m) for m in self.worker_peak_rss_mb],
+            "cpu_by_thread": {
+                "tracking": _finite(self.tracking_cpu_s),
+                "extraction_workers": [_finite(c) for c in self.worker_cpu_s],
+                "reader": _finite(self.reader_cpu_s),
+                "other": _finite(self.other_cpu_s),
+            },
+            "cores": self.cores,
+            "realtime_bounds": dict(
+                zip(("cores", "tracking_thread"), map(_finite, self.realtime_bounds()), strict=True)
+            ),
             "realtime_factor": round(self.realtime_factor, 3),
             "timings": {
                 s: {
@@ -190,6 +238,7 @@ class RunSummary:
                 if self.worker_peak_rss_mb
                 else ""
             ),
+            *self._cpu_lines(),
         ]
         for c in self.imu_checks:
             if math.isnan(c.ratio):

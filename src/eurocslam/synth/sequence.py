@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import multiprocessing as mp
-import os
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -16,6 +15,7 @@ from numpy.typing import NDArray
 from eurocslam.dataset.calib import StereoRig, calib_folder, default_rig, load_rig
 from eurocslam.errors import CalibrationError, DatasetError
 from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
+from eurocslam.memory import usable_cores
 from eurocslam.synth import writer
 from eurocslam.synth.imu import (
     ImuStream,
@@ -312,14 +312,6 @@ def _render_frames(indices: list[int]) -> tuple[int, float]:
     return len(indices), time.process_time() - t0
 
 
-def default_workers() -> int:
-    try:
-        n = len(os.sched_getaffinity(0))
-    except AttributeError:
-        n = os.cpu_count() or 1
-    return max(1, n)
-
-
 def _init_worker(spec: SynthSpec, stage: Path) -> None:
     """Worker of a fresh (spawned) process: rebuild the scene from the spec (deterministic,
     so the frames are the same as a forked worker's)."""
@@ -398,7 +390,7 @@ def synthesize(
     stage = writer.prepare_folder(out, overwrite)
     try:
         scene = Scene.build(spec)
-        nw = default_workers() if workers is None else max(1, int(workers))
+        nw = usable_cores() if workers is None else max(1, int(workers))
         t_render = time.perf_counter()
         cpu = render_all(scene, stage, nw, progress)
         render_wall = time.perf_counter() - t_render
