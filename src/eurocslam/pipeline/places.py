@@ -324,7 +324,9 @@ class PlaceStage:
         """(frame, T_frame_seg) once the segment has recognised another frame consistently."""
         book = self.book
         frame = book.frame_of[segment]
-        if not self.cfg.merge or frame != segment:
+        # a segment merges only as its frame's root, and only into another frame
+        if not self.cfg.merge or frame != segment or len(set(book.frame_of)) < 2:
+            self._merge_votes = []
             return None
 
         def accept(key: int) -> bool:
