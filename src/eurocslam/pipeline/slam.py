@@ -26,7 +26,6 @@ States (`PipelineState`):
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Iterable
 
@@ -236,10 +235,7 @@ class SlamPipeline(Startup):
         s.tracking_cpu_s = time.thread_time() - thread0
         s.cores = usable_cores()
         s.peak_rss_mb = peak_rss_mb()
-        cost = self.features.cost
-        s.worker_peak_rss_mb = list(cost.worker_peak_rss_mb)
-        s.worker_cpu_s = list(cost.worker_cpu_s)
-        s.reader_cpu_s = cost.reader_cpu_s if cost.worker_cpu_s else math.nan
+        s.add_extraction_cost(self.features.cost)
         if t_first is not None and t_last is not None:
             s.duration_s = (t_last - t_first) * 1e-9 + 1.0 / max(self.source.rig.cam0.rate_hz, 1e-9)
         return self.result()

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eurocslam.backend.types import ImuCheck
+from eurocslam.frontend.stream import ExtractionCost
 from eurocslam.pipeline.places import PlaceEvent
 
 
@@ -67,6 +68,12 @@ class RunSummary:
 
     def add_time(self, stage: str, ms: float) -> None:
         self.timings_ms.setdefault(stage, []).append(ms)
+
+    def add_extraction_cost(self, cost: ExtractionCost) -> None:
+        """The extraction workers' memory and CPU time, and the frame reader's (none inline)."""
+        self.worker_peak_rss_mb = list(cost.worker_peak_rss_mb)
+        self.worker_cpu_s = list(cost.worker_cpu_s)
+        self.reader_cpu_s = cost.reader_cpu_s if cost.worker_cpu_s else math.nan
 
     @property
     def coverage(self) -> float:
