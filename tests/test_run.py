@@ -147,9 +147,13 @@ def test_summary_splits_the_cpu_time_by_thread() -> None:
     d = s.to_dict()
     assert d["cpu_by_thread"]["extraction_workers"] == [20.0, 19.0]
     assert d["realtime_bounds"] == {"cores": 2.222, "tracking_thread": 2.5}
+    # extraction inline (no workers, no reader thread): the rest is the other threads'
+    inline = RunSummary(duration_s=10.0, cpu_s=9.0, tracking_cpu_s=8.0, cores=2)
+    assert "CPU s by thread: tracking thread 8.0, other threads 1.0" in inline.lines()
     # not measured (a summary built elsewhere): no lines, nulls in the JSON
     empty = RunSummary(duration_s=1.0, cpu_s=1.0)
     assert not [x for x in empty.lines() if x.startswith("CPU s by")]
+    assert empty.to_dict()["cpu_by_thread"]["other"] is None
     json.dumps(empty.to_dict(), allow_nan=False)
 
 

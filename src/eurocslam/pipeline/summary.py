@@ -85,9 +85,11 @@ class RunSummary:
 
     @property
     def other_cpu_s(self) -> float:
-        """CPU time of the threads not measured one by one (the MCAP writer, ...)."""
-        measured = self.tracking_cpu_s + sum(self.worker_cpu_s) + self.reader_cpu_s
-        return max(0.0, self.cpu_s - measured)
+        """CPU time of the threads not measured one by one (the MCAP writer, ...); NaN when
+        the tracking thread's was not measured."""
+        reader = 0.0 if math.isnan(self.reader_cpu_s) else self.reader_cpu_s  # NaN: no reader
+        measured = self.tracking_cpu_s + sum(self.worker_cpu_s) + reader
+        return math.nan if math.isnan(measured) else max(0.0, self.cpu_s - measured)
 
     def realtime_bounds(self) -> tuple[float, float]:
         """The real-time factors this CPU time allows: all cores busy all the time, and the
