@@ -138,9 +138,9 @@ def test_summary_splits_the_cpu_time_by_thread() -> None:
     s.worker_cpu_s, s.reader_cpu_s = [20.0, 19.0], 6.0
     assert s.other_cpu_s == pytest.approx(5.0)
     assert s.realtime_bounds() == pytest.approx((100 / 45, 2.5))
-    cpu, bound = [x for x in s.lines() if x.startswith(("CPU s by", "at this CPU"))]
+    cpu, bound = [x for x in s.lines() if x.startswith(("CPU seconds by", "at this CPU"))]
     assert cpu == (
-        "CPU s by thread: tracking thread 40.0, extraction workers 20.0 + 19.0, "
+        "CPU seconds by thread: tracking thread 40.0, extraction workers 20.0 + 19.0, "
         "frame reader 6.0, other threads 5.0"
     )
     assert bound.endswith("at most 2.22 on 2 core(s) and 2.50 for the tracking thread")
@@ -149,10 +149,10 @@ def test_summary_splits_the_cpu_time_by_thread() -> None:
     assert d["realtime_bounds"] == {"cores": 2.222, "tracking_thread": 2.5}
     # extraction inline (no workers, no reader thread): the rest is the other threads'
     inline = RunSummary(duration_s=10.0, cpu_s=9.0, tracking_cpu_s=8.0, cores=2)
-    assert "CPU s by thread: tracking thread 8.0, other threads 1.0" in inline.lines()
+    assert "CPU seconds by thread: tracking thread 8.0, other threads 1.0" in inline.lines()
     # not measured (a summary built elsewhere): no lines, nulls in the JSON
     empty = RunSummary(duration_s=1.0, cpu_s=1.0)
-    assert not [x for x in empty.lines() if x.startswith("CPU s by")]
+    assert not [x for x in empty.lines() if x.startswith("CPU seconds by")]
     assert empty.to_dict()["cpu_by_thread"]["other"] is None
     json.dumps(empty.to_dict(), allow_nan=False)
 

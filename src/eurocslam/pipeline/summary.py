@@ -112,7 +112,7 @@ class RunSummary:
         parts.append(f"other threads {self.other_cpu_s:.1f}")
         by_cores, by_thread = self.realtime_bounds()
         return [
-            "CPU s by thread: " + ", ".join(parts),
+            "CPU seconds by thread: " + ", ".join(parts),
             f"at this CPU time the real-time factor is at most {by_cores:.2f} on {self.cores} "
             f"core(s) and {by_thread:.2f} for the tracking thread",
         ]
