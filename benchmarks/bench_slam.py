@@ -270,7 +270,8 @@ def main() -> int:
 
     hdr = (
         f"{'seq':<6}{'dur s':>6}{'VIO ATE':>9}{'online':>8}{'VO ATE':>8}{'VIO<VO':>7}"
-        f"{'pose %':>8}{'resets':>7}{'init':>8}{'IMU x':>9}{'RTF':>6}{'CPU/s':>6}{'RSS MB':>8}"
+        f"{'pose %':>8}{'resets':>7}{'init':>8}{'IMU x':>9}{'RTF':>6}{'max':>6}{'CPU/s':>6}"
+        f"{'RSS MB':>8}"
         f"{'ORB3*':>7}{'Basalt*':>8}{'VINS*':>7}"
     )
     print(hdr)
@@ -293,6 +294,7 @@ def main() -> int:
             f"{100 * s.get('coverage', 0):>8.1f}{len(s.get('resets', [])):>7}"
             f" {','.join(s.get('init_modes', [])):>7}{imu_ratio(s):>9}"
             f"{s.get('realtime_factor', 0):>6.2f}"
+            f"{fmt((s.get('realtime_bounds') or {}).get('cores'), '.2f'):>6}"
             f"{s.get('cpu_s', 0) / max(s.get('duration_s', 1), 1e-9):>6.2f}"
             f"{vio['rss_mb']:>8.0f}{fmt(pub[0]):>7}{fmt(pub[1], '.2f'):>8}{fmt(pub[2]):>7}"
         )
@@ -303,9 +305,10 @@ def main() -> int:
         "redundancy; above 2 the accelerometer is re-weighted, '>': how far)."
     )
     print(
-        "RTF: data seconds per wall second (MCAP writing included); CPU/s: CPU seconds (all "
-        "threads and worker processes) per data second; RTF 1.5 on 2 idle cores needs CPU/s "
-        "below 1.33. RSS: peak memory of the run plus its extraction workers."
+        "RTF: data seconds per wall second (MCAP writing included); max: the RTF this CPU time "
+        "allows with every core busy (the summary's bound); CPU/s: CPU seconds (all threads and "
+        "worker processes) per data second; RTF 1.5 on 2 idle cores needs CPU/s below 1.33. "
+        "RSS: peak memory of the run plus its extraction workers."
     )
     print(
         "machine speed (ORB ms per image, one thread; before the first run and after each "
