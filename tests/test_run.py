@@ -14,9 +14,13 @@ import yaml
 from eurocslam.backend.types import ImuCheck
 from eurocslam.cli import main
 from eurocslam.config import load_config
+from eurocslam.dataset import open_sequence
 from eurocslam.io.ply import read_ply
 from eurocslam.io.trajectory_io import read_euroc_csv, read_tum
 from eurocslam.pipeline.summary import RunSummary
+from eurocslam.run_options import RunOptions
+from eurocslam.runner import run_slam
+from eurocslam.synth import SynthSpec, synthesize
 
 SLAM_TOPICS = {
     "/tf",
@@ -167,3 +171,14 @@ def test_summary_reports_the_imu_check() -> None:
     assert d[0] == {"ratio": 0.31, "accel_scale": 1.0, "ratio_after": None}
     assert d[2]["ratio"] is None
     json.dumps(d, allow_nan=False)
+
+
+def test_the_progress_bar_says_when_the_final_batch_runs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """After the last frame the bar names the final batch (seconds long on a long sequence),
+    rather than sitting at 100 % in silence."""
+    seq = synthesize(SynthSpec.tiny(seed=2), tmp_path / "tiny")
+    run_slam(open_sequence(seq), tmp_path / "out", options=RunOptions(mcap=False, progress=True))
+    last = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert "100%" in last and "final batch: optimising the whole trajectory and map" in last

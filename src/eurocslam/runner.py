@@ -142,7 +142,9 @@ def run_slam(
             nonlocal started
             started = True
             pb.update(1)
-            if pb.n % 10 == 0 or out.reset_reason:
+            if pb.n == n_frames:  # the final batch follows: seconds on a long sequence
+                pb.set_postfix_str("final batch: optimising the whole trajectory and map ...")
+            elif pb.n % 10 == 0 or out.reset_reason:
                 fr = out.frontend
                 pb.set_postfix(
                     state=out.state.value,
