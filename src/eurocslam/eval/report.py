@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from eurocslam.errors import OutputError
-from eurocslam.eval.evaluate import EvalResult
+from eurocslam.eval.evaluate import MIN_FRACTION_LENGTH_M, EvalResult
 from eurocslam.eval.joint import JointResult
 from eurocslam.eval.metrics import Stats
 
@@ -98,7 +98,8 @@ def markdown(r: EvalResult, title: str | None = None) -> str:
     elif not r.lengths:
         out.append(
             f"- drift: none measured (the matched ground-truth path, "
-            f"{sum(s.gt_length_m for s in r.segments):.3f} m, has no RPE length of 0.1 m or more)"
+            f"{sum(s.gt_length_m for s in r.segments):.3f} m, has no RPE length of "
+            f"{MIN_FRACTION_LENGTH_M:g} m or more)"
         )
     out += [
         "",

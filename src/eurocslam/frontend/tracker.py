@@ -399,16 +399,14 @@ class StereoTracker:
             T_rc, rows, kps = T2, rows2, kps2
         if rows.size < min_inliers:
             return self._lost(timings, t0, pnp_ms)
-        timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
-        timings["pnp"] = pnp_ms
+        _record_time(timings, t0, pnp_ms)
         return body_T_from_rect(T_rc, self._T_body_rect0), rows, kps, path
 
     @staticmethod
     def _lost(
         timings: dict[str, float], t0: float, pnp_ms: float
     ) -> tuple[None, NDArray[np.intp], NDArray[np.intp], str]:
-        timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
-        timings["pnp"] = pnp_ms
+        _record_time(timings, t0, pnp_ms)
         empty = np.zeros(0, np.intp)
         return None, empty, empty, "lost"
 
@@ -568,3 +566,9 @@ class StereoTracker:
             descriptors=(np.zeros((0, 32), np.uint8) if obs_kps is None else ff.left.desc[obs_kps]),
             octaves=np.zeros(0, np.int32) if obs_kps is None else ff.left.octave[obs_kps],
         )
+
+
+def _record_time(timings: dict[str, float], t0: float, pnp_ms: float) -> None:
+    """Tracking's time since `t0` without the PnP's, which is recorded on its own."""
+    timings["tracking"] = (time.perf_counter() - t0) * 1e3 - pnp_ms
+    timings["pnp"] = pnp_ms

@@ -293,13 +293,11 @@ class SlamPipeline(Startup):
             if self.places is not None:
                 need = max(need, self.cfg.places.min_inliers)
         fr = self.tracker.track(ff, prior, kf_ok, may_restart=not blind, min_inliers=need)
-        tracked = fr.T_world_body is not None  # (a tracked pose has `need` inliers)
-        if tracked and fr.T_world_body is not None and not blind:
-            v = self._plausible(t, pred.T_world_body, fr.T_world_body)
-            if not v.ok:
-                tracked = False
-                self.tracker.apply(MapCorrection(pred.T_world_body))
-        if tracked and fr.T_world_body is not None:
+        T = fr.T_world_body  # tracked (with `need` inliers), or None
+        if T is not None and not blind and not self._plausible(t, pred.T_world_body, T).ok:
+            T = None
+            self.tracker.apply(MapCorrection(pred.T_world_body))
+        if T is not None:
             need_kf = (
                 fr.is_keyframe
                 or fr.state == TrackingState.INIT
@@ -307,8 +305,7 @@ class SlamPipeline(Startup):
                 or since_kf >= bc.max_keyframe_interval_s
             )
             if need_kf:
-                return self._add_keyframe(t, fr, pred, fr.T_world_body if blind else None)
-            T = fr.T_world_body
+                return self._add_keyframe(t, fr, pred, T if blind else None)
             self.segment.records.append(FrameRecord(t, T, self._kf_index))
             self.state = PipelineState.TRACKING
             self._last_good_t, self._last_good_T = t, T
