@@ -10,6 +10,7 @@ import yaml
 
 from eurocslam.config import RunConfig, config_from_dict, load_config
 from eurocslam.errors import ConfigError
+from eurocslam.frontend.config import FrontendConfig
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -99,3 +100,20 @@ def test_mode_is_resolved_against_the_sequence() -> None:
         resolve_mode(RunConfig(mode=STEREO_INERTIAL), has_imu=False, where="seq")
     with pytest.raises(ConfigError, match="not resolved"):
         _ = RunConfig().inertial
+
+
+
+def test_tracking_one_frame_in_n_needs_the_imu(tmp_path: Path) -> None:
+    """`frontend.track_every` bridges the frames between with the IMU: a visual-only run (asked
+    for, or a sequence without an IMU) cannot have it; 0 is out of range."""
+    from eurocslam.config import STEREO_INERTIAL, VISUAL_ONLY, resolve_mode
+
+    every2 = RunConfig(frontend=FrontendConfig(track_every=2))
+    assert resolve_mode(every2, has_imu=True).mode == STEREO_INERTIAL
+    for cfg, has_imu in ((every2, False), (dataclasses.replace(every2, mode=VISUAL_ONLY), True)):
+        with pytest.raises(ConfigError, match="'frontend.track_every' value 2: .* visual-only"):
+            resolve_mode(cfg, has_imu=has_imu)
+    p = tmp_path / "c.yaml"
+    p.write_text("frontend:\n  track_every: 0\n")
+    with pytest.raises(ConfigError, match="'frontend.track_every' value 0 out of range"):
+        load_config(p)

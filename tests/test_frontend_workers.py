@@ -18,7 +18,7 @@ import pytest
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import DatasetError, SlamError
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.extraction import FrameFeatures
+from eurocslam.frontend.extraction import SKIPPED, FrameFeatures
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.workers import ExtractionWorkers
 from eurocslam.synth import Scene, SynthSpec
@@ -72,6 +72,25 @@ def test_workers_extract_what_inline_extraction_does(scene: Scene, frames) -> No
     assert len(cost.worker_cpu_s) == 2 and all(c > 0 for c in cost.worker_cpu_s)
     assert cost.reader_cpu_s > 0
     assert _shm_names() <= before  # the shared memory is gone
+
+
+def test_one_frame_in_n_is_extracted(scene: Scene, frames) -> None:
+    """`track_every: 3`: frames 0, 3, 6, ... of the stream are extracted (as inline, also when
+    one fails the image check), the others come back SKIPPED without features, in workers and
+    inline alike."""
+    bad = list(frames)
+    bad[3] = replace(bad[3], left=None)
+    for cfg in (FrontendConfig(track_every=3), FrontendConfig(track_every=3, prefetch=False)):
+        fe = FeatureStream(scene.rig, cfg)
+        got = list(fe(bad))
+        assert [fr for fr, _ in got] == bad
+        for k, ((_, ff), fr) in enumerate(zip(got, bad, strict=True)):
+            if k % 3:
+                assert ff.problem == SKIPPED and ff.t_ns == fr.t_ns
+                assert len(ff.left) == len(ff.right) == len(ff.stereo.uR) == 0
+            else:
+                _same(ff, fe.extractor.extract(fr))
+        assert got[3][1].problem == "missing" and len(got[6][1].left) > 100
 
 
 def test_an_error_of_the_source_reaches_the_caller(scene: Scene, frames) -> None:

@@ -354,10 +354,15 @@ def resolve_mode(cfg: RunConfig, has_imu: bool, where: str = "the sequence") -> 
         mode = STEREO_INERTIAL if has_imu else VISUAL_ONLY
         if not has_imu:
             logger.info("note: %s has no IMU data: running visual-only", where)
-        return dataclasses.replace(cfg, mode=mode)
+        cfg = dataclasses.replace(cfg, mode=mode)
     if cfg.mode == STEREO_INERTIAL and not has_imu:
         raise ConfigError(
             f"{where}: no IMU data for mode stereo-inertial (mode: auto runs it visual-only)"
+        )
+    if cfg.mode == VISUAL_ONLY and cfg.frontend.track_every > 1:
+        raise ConfigError(
+            f"key 'frontend.track_every' value {cfg.frontend.track_every}: the frames between "
+            "tracked ones need the IMU, and this run is visual-only (use 1)"
         )
     return cfg
 

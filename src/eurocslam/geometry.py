@@ -122,6 +122,12 @@ def inv_T(T: F64) -> F64:
     return make_T(rt, -np.einsum("...ij,...j->...i", rt, t))
 
 
+def extrapolate(Ta: F64, Tb: F64, s: float) -> F64:
+    """`Tb` moved on by `s` times the motion from `Ta` to `Tb` (constant body-frame twist)."""
+    d = inv_T(Ta) @ Tb
+    return Tb @ make_T(so3_exp(so3_log(d[:3, :3]) * s), d[:3, 3] * s)
+
+
 def transform_points(T: F64, p: F64) -> F64:
     """Apply T (4x4) to points (N, 3)."""
     p = np.asarray(p, dtype=np.float64)

@@ -112,6 +112,9 @@ class FrontendConfig:
     # the current one is tracked, decoding in a reader thread (frontend/workers.py)
     prefetch: bool = True
     prefetch_workers: int = 2  # worker processes
+    # track one frame in N; the IMU gives the frames between their pose (stereo-inertial only).
+    # 2 halves extraction and tracking (benchmarks/RESULTS.md, "Tracking every second frame")
+    track_every: int = 1
 
     def for_mode(self, inertial: bool) -> FrontendConfig:
         """The tracker's configuration for a stereo-inertial or a visual-only run."""
@@ -141,6 +144,7 @@ class FrontendConfig:
             ("subpixel_half_window", self.subpixel_half_window >= 1),
             ("subpixel_search_px", self.subpixel_search_px >= 1),
             ("prefetch_workers", self.prefetch_workers >= 1),
+            ("track_every", self.track_every >= 1),
         ]
         for key, ok in checks:
             if not ok:

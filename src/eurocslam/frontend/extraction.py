@@ -1,7 +1,9 @@
 """Extraction, the first stage of the frontend: one `StereoFrame` in, one `FrameFeatures` out.
 
 Per frame: the image check (missing / blank / saturated / wrong size: the frame is NO_IMAGE for
-tracking), rectification, grid-bucketed ORB on both images, stereo matching. Stateless and
+tracking), rectification, grid-bucketed ORB on both images, stereo matching. With
+`frontend.track_every` N > 1 only every Nth frame of a stream is extracted; the others are
+SKIPPED (the pipeline gives them the IMU's pose). Stateless and
 thread-safe (one ORB detector per thread), so `frontend/workers.py` can run it in other
 processes while the tracking stage works on the previous frame.
 """
@@ -46,12 +48,15 @@ def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:
     return None
 
 
+SKIPPED = "skipped"  # FrameFeatures.problem of a frame left out by frontend.track_every
+
+
 @dataclass(frozen=True)
 class FrameFeatures:
     """Output of the extraction stage for one stereo frame (rectified cam0 pixels)."""
 
     t_ns: int
-    problem: str | None  # None: usable; else why the frame is NO_IMAGE
+    problem: str | None  # None: usable; SKIPPED; else why the frame is NO_IMAGE
     left: Features
     right: Features
     stereo: StereoMatches
@@ -99,6 +104,17 @@ class Extractor:
         ):
             problem = "size"
         return problem
+
+    def without_extraction(self, frame: StereoFrame, n: int) -> FrameFeatures | None:
+        """The features of a stream's `n`th frame (from 0) where they need no extraction: a
+        frame between two tracked ones (SKIPPED) or one that fails the image check; None for a
+        frame to extract."""
+        if n % self.config.track_every:
+            e = Features.empty()
+            return FrameFeatures(frame.t_ns, SKIPPED, e, e, _no_stereo(), {})
+        if self.frame_problem(frame) is not None:
+            return self.extract(frame)
+        return None
 
     def extract(self, frame: StereoFrame) -> FrameFeatures:
         """Rectify, ORB on both images, stereo matching."""

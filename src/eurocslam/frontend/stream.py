@@ -56,8 +56,9 @@ class FeatureStream:
                     e,
                 )
         if workers is None:
-            for frame in frames:
-                yield frame, self.extractor.extract(frame)
+            ex = self.extractor
+            for n, frame in enumerate(frames):
+                yield frame, ex.without_extraction(frame, n) or ex.extract(frame)
             return
         try:
             yield from workers.stream(frames)

@@ -5,7 +5,8 @@ tracks the current one. A reader thread takes frames from the source (decoding t
 releases the GIL), copies each frame's images into a slot of shared memory and hands the slot to a
 worker process, round-robin; the worker rectifies, extracts ORB on both images and matches them
 (`Extractor.extract`) and sends the features back over a socket; the caller receives them in
-frame order. Frames that fail the image check (missing, blank, wrong size) skip the workers.
+frame order. Frames that fail the image check (missing, blank, wrong size) and frames left out by
+`frontend.track_every` skip the workers.
 
 A worker is a `python -c` that ignores SIGINT before anything else and runs `_worker_main` on
 the socket FD (subprocess, not multiprocessing: a spawned multiprocessing child imports the
@@ -300,7 +301,7 @@ class ExtractionWorkers:
     # ---- the reader thread -------------------------------------------------------------------
     def _read(self, frames: Iterator[StereoFrame], jobs: queue.Queue[_Job | _End]) -> None:
         ex = self.extractor
-        k = 0
+        k = n = 0  # frames sent to workers; frames read
         try:
             while not self._stop.is_set():
                 t0 = time.perf_counter()
@@ -309,8 +310,10 @@ class ExtractionWorkers:
                 except StopIteration:
                     break
                 decode_ms = (time.perf_counter() - t0) * 1e3
-                if ex.frame_problem(frame) is not None:
-                    job = _Job(frame, decode_ms, local=ex.extract(frame))
+                local = ex.without_extraction(frame, n)
+                n += 1
+                if local is not None:
+                    job = _Job(frame, decode_ms, local=local)
                 else:
                     slot = self._take_slot()
                     if slot is None:

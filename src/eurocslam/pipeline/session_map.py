@@ -152,3 +152,16 @@ def build_map(
         mode,
         sessions,
     )
+
+
+def localized_after_s(
+    first_t_ns: list[int], places: PlaceStage | None, frame_of: list[int]
+) -> float | None:
+    """Seconds from a session's first frame (the earliest of its segments' `first_t_ns`) to its
+    first merge into the earlier map's frame; None if it never merged."""
+    merges = [
+        e.t_ns
+        for e in (places.events if places is not None else [])
+        if e.kind == "merge" and frame_of[e.segment] == MAP_SEGMENT
+    ]
+    return round((min(merges) - min(first_t_ns)) * 1e-9, 3) if merges and first_t_ns else None

@@ -39,11 +39,11 @@ from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimat
 from eurocslam.config import RunConfig, resolve_mode
 from eurocslam.dataset.types import SequenceSource, has_imu
 from eurocslam.errors import ConfigError
-from eurocslam.frontend.extraction import FrameFeatures
+from eurocslam.frontend.extraction import SKIPPED, FrameFeatures
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState
-from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
+from eurocslam.geometry import F64, extrapolate, inv_T
 from eurocslam.maps.store import SavedMap
 from eurocslam.memory import peak_rss_mb, usable_cores
 from eurocslam.pipeline.places import FrameBook, LoopFix, PlaceEvent, PlaceStage
@@ -55,9 +55,9 @@ from eurocslam.pipeline.records import (
     RunResult,
 )
 from eurocslam.pipeline.segments import FrameRecord, Segment, assemble
-from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map
+from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
-from eurocslam.pipeline.summary import RunSummary, cpu_seconds
+from eurocslam.pipeline.summary import IMU_BETWEEN, RunSummary, cpu_seconds
 
 
 class SlamPipeline(Startup):
@@ -247,7 +247,12 @@ class SlamPipeline(Startup):
         for k in ("decode", "rectify", "orb", "stereo_matching"):
             if k in ff.timings_ms:
                 s.add_time(k, ff.timings_ms[k])
-        out = self._step_init(ff) if self.state == PipelineState.INIT else self._step_tracking(ff)
+        if ff.problem == SKIPPED and self.state != PipelineState.LOST:
+            out = self._between(ff.t_ns)  # lost, it is a frame without images
+        elif self.state == PipelineState.INIT:
+            out = self._step_init(ff)
+        else:
+            out = self._step_tracking(ff)
         if out.frontend is not None:
             s.landmarks_reused += out.frontend.n_reused
             if out.frontend.track_path:
@@ -260,6 +265,16 @@ class SlamPipeline(Startup):
             s.frames_with_pose += 1
             self._last_pose = out.T_world_body
         return out
+
+    def _between(self, t: int) -> FrameOutput:
+        """A frame left out by `frontend.track_every`: tracking, the IMU's prediction from the
+        latest keyframe state is its pose; before the initialisation it has none."""
+        if self.state == PipelineState.INIT:
+            return self._emit(t, PipelineState.INIT, None, None)
+        T = self.est.predict(t).T_world_body
+        self.segment.records.append(FrameRecord(t, T, self._kf_index))
+        self.summary.track_paths[IMU_BETWEEN] = self.summary.track_paths.get(IMU_BETWEEN, 0) + 1
+        return self._emit(t, PipelineState.TRACKING, T, None, self._nav)
 
     # ---- TRACKING / LOST ------------------------------------------------------------------------
     def _step_tracking(self, ff: FrameFeatures) -> FrameOutput:
@@ -466,10 +481,7 @@ class SlamPipeline(Startup):
         if len(pts) == 1 or pts[1][0] <= pts[0][0]:
             return pts[-1][1]
         (ta, Ta, _), (tb, Tb, _) = pts
-        s = (t - tb) / (tb - ta)
-        d = inv_T(Ta) @ Tb
-        step = make_T(so3_exp(so3_log(d[:3, :3]) * s), d[:3, 3] * s)
-        return Tb @ step
+        return extrapolate(Ta, Tb, (t - tb) / (tb - ta))
 
     def _fail(
         self,
@@ -555,16 +567,6 @@ class SlamPipeline(Startup):
             places=events,
         )
 
-    def _localized_after_s(self) -> float | None:
-        """Seconds from the first frame to the merge into the earlier map's frame."""
-        starts = [seg.records[0].t_ns for seg in self.segments if seg.records]
-        merges = [
-            e.t_ns
-            for e in (self.places.events if self.places is not None else [])
-            if e.kind == "merge" and self.frames.frame_of[e.segment] == MAP_SEGMENT
-        ]
-        return round((min(merges) - min(starts)) * 1e-9, 3) if merges and starts else None
-
     def result(self) -> RunResult:
         s = self.summary
         s.segments = sum(1 for seg in self.segments if seg.records)
@@ -577,7 +579,8 @@ class SlamPipeline(Startup):
             s.places = list(self.places.events)
             s.place_db = self.places.stats()
         if self.prior_map is not None:
-            s.prior_map["localized_after_s"] = self._localized_after_s()
+            starts = [seg.records[0].t_ns for seg in self.segments if seg.records]
+            s.prior_map["localized_after_s"] = localized_after_s(starts, self.places, book.frame_of)
         on_t = np.array([o[0] for o in self._online], dtype=np.int64)
         on_T = np.array([book.T_frame_seg[o[2]] @ o[1] for o in self._online]).reshape(-1, 4, 4)
         on_s = np.array([book.frame_of[o[2]] for o in self._online], dtype=np.int64)

@@ -30,7 +30,8 @@ def _finite(x: float) -> float | None:
     return None if math.isnan(x) else round(x, 3)
 
 
-TRACK_PATHS = ("projection", "projection_wide", "descriptor", "lost")
+IMU_BETWEEN = "imu_between"  # not tracked (frontend.track_every): the IMU's pose
+TRACK_PATHS = ("projection", "projection_wide", "descriptor", "lost", IMU_BETWEEN)
 
 
 @dataclass
@@ -51,7 +52,8 @@ class RunSummary:
     place_db: dict[str, float] = field(default_factory=dict)  # the place database's size, cost
     # `run --map`: path, keyframes, landmarks, load_s, localized_after_s (None: not localized)
     prior_map: dict[str, object] = field(default_factory=dict)
-    # how the tracker found each frame's pose: projection | projection_wide | descriptor | lost
+    # how each frame's pose was found: projection | projection_wide | descriptor | lost (the
+    # tracker's), imu_between (a frame left out by frontend.track_every)
     track_paths: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
     wall_s: float = 0.0
