@@ -102,7 +102,6 @@ def test_mode_is_resolved_against_the_sequence() -> None:
         _ = RunConfig().inertial
 
 
-
 def test_tracking_one_frame_in_n_needs_the_imu(tmp_path: Path) -> None:
     """`frontend.track_every` bridges the frames between with the IMU: a visual-only run (asked
     for, or a sequence without an IMU) cannot have it; 0 is out of range."""
@@ -111,9 +110,9 @@ def test_tracking_one_frame_in_n_needs_the_imu(tmp_path: Path) -> None:
     every2 = RunConfig(frontend=FrontendConfig(track_every=2))
     assert resolve_mode(every2, has_imu=True).mode == STEREO_INERTIAL
     for cfg, has_imu in ((every2, False), (dataclasses.replace(every2, mode=VISUAL_ONLY), True)):
-        with pytest.raises(ConfigError, match="'frontend.track_every' value 2: .* visual-only"):
+        with pytest.raises(ConfigError, match=r"'frontend\.track_every' value 2: .* visual-only"):
             resolve_mode(cfg, has_imu=has_imu)
     p = tmp_path / "c.yaml"
     p.write_text("frontend:\n  track_every: 0\n")
-    with pytest.raises(ConfigError, match="'frontend.track_every' value 0 out of range"):
+    with pytest.raises(ConfigError, match=r"'frontend\.track_every' value 0 out of range"):
         load_config(p)

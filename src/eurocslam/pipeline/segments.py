@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eurocslam.backend.types import SegmentSolution
-from eurocslam.geometry import F64, inv_T
+from eurocslam.geometry import F64, extrapolate, inv_T
 
 
 @dataclass
@@ -88,3 +88,15 @@ def assemble(
         np.concatenate(lm) if lm else np.zeros((0, 3)),
         np.concatenate(ls) if ls else np.zeros(0, np.int64),
     )
+
+
+def extrapolate_online(online: list[tuple[int, F64, int]], segment: int, t: int) -> F64 | None:
+    """Pose at `t` extrapolated from the last two online poses `(t_ns, T, segment)` when both
+    are of `segment`; the last alone when only it is; None when neither is."""
+    pts = [o for o in online[-2:] if o[2] == segment]
+    if not pts:
+        return None
+    if len(pts) == 1 or pts[1][0] <= pts[0][0]:
+        return pts[-1][1]
+    (ta, Ta, _), (tb, Tb, _) = pts
+    return extrapolate(Ta, Tb, (t - tb) / (tb - ta))

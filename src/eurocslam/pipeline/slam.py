@@ -16,6 +16,8 @@ States (`PipelineState`):
   state for keyframes and the tracker's pose otherwise. At each keyframe place recognition looks
   for a loop (and corrects the estimate when the drift is large) and, in a segment started after
   a reset, for a place of an earlier segment (then the segment joins that segment's world).
+  With `frontend.track_every` N > 1 only every Nth frame is extracted and tracked; a frame
+  between gets the IMU's motion since the last tracked frame as its pose.
 * **LOST**: blank / missing images or failed tracking: the prediction bridges the frames while
   it is worth something (`health.max_lost_s` with the IMU, `max_lost_s_no_imu` without or
   across an IMU dropout); beyond, frames get no pose while every frame with images is matched
@@ -43,7 +45,7 @@ from eurocslam.frontend.extraction import SKIPPED, FrameFeatures
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState
-from eurocslam.geometry import F64, extrapolate, inv_T
+from eurocslam.geometry import F64, inv_T
 from eurocslam.maps.store import SavedMap
 from eurocslam.memory import peak_rss_mb, usable_cores
 from eurocslam.pipeline.places import FrameBook, LoopFix, PlaceEvent, PlaceStage
@@ -54,7 +56,7 @@ from eurocslam.pipeline.records import (
     PipelineState,
     RunResult,
 )
-from eurocslam.pipeline.segments import FrameRecord, Segment, assemble
+from eurocslam.pipeline.segments import FrameRecord, Segment, assemble, extrapolate_online
 from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
 from eurocslam.pipeline.summary import IMU_BETWEEN, RunSummary, cpu_seconds
@@ -126,6 +128,7 @@ class SlamPipeline(Startup):
         self._kf_index = -1  # the latest keyframe's index in the segment
         self._n_active = 0  # landmarks in the smoother
         self._kf_path: list[tuple[int, F64]] = []  # keyframes: time, latest smoothed pose
+        self._tracked_offset: F64 | None = None  # last tracked pose @ inv(its prediction)
 
     def _file_prior_map(self, prior: PriorMap) -> None:
         """The earlier map as segment 0 (no frames): its keyframes in the place database, its
@@ -267,11 +270,12 @@ class SlamPipeline(Startup):
         return out
 
     def _between(self, t: int) -> FrameOutput:
-        """A frame left out by `frontend.track_every`: tracking, the IMU's prediction from the
-        latest keyframe state is its pose; before the initialisation it has none."""
+        """A frame left out by `frontend.track_every`: the IMU's motion since the last tracked
+        frame is its pose (before the initialisation: none)."""
         if self.state == PipelineState.INIT:
             return self._emit(t, PipelineState.INIT, None, None)
         T = self.est.predict(t).T_world_body
+        T = T if self._tracked_offset is None else self._tracked_offset @ T
         self.segment.records.append(FrameRecord(t, T, self._kf_index))
         self.summary.track_paths[IMU_BETWEEN] = self.summary.track_paths.get(IMU_BETWEEN, 0) + 1
         return self._emit(t, PipelineState.TRACKING, T, None, self._nav)
@@ -284,7 +288,9 @@ class SlamPipeline(Startup):
         pred = self.est.predict(t)
         if not self.cfg.inertial:
             # visual-only: constant velocity from the last two poses (the tracker's own model)
-            pred = NavEstimate(t, self._constant_velocity(t), pred.v_world, pred.bg, pred.ba)
+            T_cv = extrapolate_online(self._online, self.segment.index, t)
+            T_cv = nav.T_world_body if T_cv is None else T_cv
+            pred = NavEstimate(t, T_cv, pred.v_world, pred.bg, pred.ba)
         # blind for longer than the prediction is worth: no prior, no new map at it
         blind = self.state == PipelineState.LOST and not self._lost_verdict(t).ok
         since_kf = (t - nav.t_ns) * 1e-9
@@ -324,6 +330,7 @@ class SlamPipeline(Startup):
             self.segment.records.append(FrameRecord(t, T, self._kf_index))
             self.state = PipelineState.TRACKING
             self._last_good_t, self._last_good_T = t, T
+            self._tracked_offset = T @ inv_T(pred.T_world_body)
             return self._emit(t, PipelineState.TRACKING, T, fr, nav)
         if self.places is not None and ff.problem is None and not blind:
             out = self._relocalize(ff, pred)
@@ -414,6 +421,7 @@ class SlamPipeline(Startup):
         seg.records.append(FrameRecord(t, T, upd.index))
         self.state = PipelineState.TRACKING
         self._last_good_t, self._last_good_T = t, T
+        self._tracked_offset = None  # the predictions start from this keyframe's state
         return self._keyframe_out(t, upd, fr)
 
     def _place_keyframe(self, t: int, upd: KeyframeUpdate, fr: FrontendResult) -> KeyframeUpdate:
@@ -470,18 +478,6 @@ class SlamPipeline(Startup):
         T_last = self._last_good_T if self._last_good_T is not None else T_pred
         dt = (t - (self._last_good_t if self._last_good_t is not None else t)) * 1e-9
         return self.health.motion(T_pred, T_last, dt, T_new)
-
-    def _constant_velocity(self, t: int) -> F64:
-        """Pose at `t` extrapolated from the last two online poses of this segment."""
-        seg = self.segment.index
-        pts = [o for o in self._online[-2:] if o[2] == seg]
-        if not pts:
-            assert self._nav is not None
-            return self._nav.T_world_body
-        if len(pts) == 1 or pts[1][0] <= pts[0][0]:
-            return pts[-1][1]
-        (ta, Ta, _), (tb, Tb, _) = pts
-        return extrapolate(Ta, Tb, (t - tb) / (tb - ta))
 
     def _fail(
         self,
