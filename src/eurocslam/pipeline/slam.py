@@ -271,9 +271,12 @@ class SlamPipeline(Startup):
 
     def _between(self, t: int) -> FrameOutput:
         """A frame left out by `frontend.track_every`: the IMU's motion since the last tracked
-        frame is its pose (before the initialisation: none)."""
+        frame is its pose; in a dynamic start's VO window, the window's last motion."""
         if self.state == PipelineState.INIT:
-            return self._emit(t, PipelineState.INIT, None, None)
+            T_vo = extrapolate_online(self._online, self.segment.index, t) if self._window else None
+            if T_vo is not None:
+                self.segment.records.append(FrameRecord(t, T_vo, -1))
+            return self._emit(t, PipelineState.INIT, T_vo, None)
         T = self.est.predict(t).T_world_body
         T = T if self._tracked_offset is None else self._tracked_offset @ T
         self.segment.records.append(FrameRecord(t, T, self._kf_index))
