@@ -86,6 +86,9 @@ def final_batch(
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(1e-4)
+    # the elimination order Levenberg-Marquardt would compute, once for every round (a
+    # rescaled graph has the same structure)
+    params.setOrdering(graph.orderingCOLAMD())
     result = _optimize(graph, vals, params, kf_estimates)
     if result is None:
         return FinalBatchResult(poses, {}, positions, None)
@@ -152,69 +155,90 @@ def _reweight_imu(
 ) -> tuple[gtsam.Values, ImuCheck]:
     """Variance-component rounds on the accelerometer (see `final_batch`): the result of the
     last round that converged, and the check."""
-    ratio = first = _imu_ratio(graph, result)
+    groups = _Groups.of(graph)
+    ratio = first = groups.imu_ratio(graph, result)
     scale, after = 1.0, math.nan
     if 0.0 < above < ratio:
         for _ in range(REWEIGHT_ROUNDS):
             trial = scale * ratio
-            g = _imu_rescaled(seg, graph, imu, trial)
+            g = _imu_rescaled(seg, graph, groups.imu_at, imu, trial)
             again = _optimize(g, result, params, kf_estimates)
             if again is None:
                 break
             scale, result = trial, again
-            ratio = after = _imu_ratio(g, result)
+            ratio = after = groups.imu_ratio(g, result)
             if ratio < REWEIGHT_DONE:
                 break
     return result, ImuCheck(first, scale, after)
 
 
-def _imu_ratio(graph: gtsam.NonlinearFactorGraph, result: gtsam.Values) -> float:
-    """Chi-square per redundancy of the IMU factors over that of the stereo factors.
+@dataclass(frozen=True)
+class _Groups:
+    """The final graph's IMU factors (their positions) and stereo factors (a graph of their
+    own, sharing them), and each group's redundancy, for the chi-square ratio of the IMU
+    check. A rescaled graph (`_imu_rescaled`) keeps every factor's position.
 
     Redundancy per group, each parameter counted in the group that determines it: an IMU
     factor has 15 residuals, 9 of which fix its keyframe's velocity and biases (6 left); the
     stereo observations have 3 residuals each, less 3 per landmark and 6 per keyframe pose."""
-    chi_imu = chi_st = 0.0
-    n_imu = n_st = 0
-    landmarks: set[int] = set()
-    poses: set[int] = set()
-    for i in range(graph.size()):
-        f = graph.at(i)
-        if isinstance(f, gtsam.CombinedImuFactor):
-            chi_imu += 2.0 * f.error(result)
-            n_imu += 1
-        elif isinstance(f, gtsam.GenericStereoFactor3D):
-            chi_st += 2.0 * f.error(result)  # Huber: outliers count linearly
-            n_st += 1
-            pose_key, lm_key = f.keys()
-            poses.add(pose_key)
-            landmarks.add(lm_key)
-    r_imu = 6 * n_imu
-    r_st = 3 * n_st - 3 * len(landmarks) - 6 * len(poses)
-    if r_imu <= 0 or r_st <= 0 or chi_st <= 0.0:
-        return math.nan
-    return (chi_imu / r_imu) / (chi_st / r_st)
+
+    imu_at: list[int]
+    stereo: gtsam.NonlinearFactorGraph
+    r_imu: int
+    r_st: int
+
+    @staticmethod
+    def of(graph: gtsam.NonlinearFactorGraph) -> _Groups:
+        imu_at = []
+        stereo = gtsam.NonlinearFactorGraph()
+        landmarks: set[int] = set()
+        poses: set[int] = set()
+        for i in range(graph.size()):
+            f = graph.at(i)
+            if isinstance(f, gtsam.CombinedImuFactor):
+                imu_at.append(i)
+            elif isinstance(f, gtsam.GenericStereoFactor3D):
+                stereo.add(f)
+                pose_key, lm_key = f.keys()
+                poses.add(pose_key)
+                landmarks.add(lm_key)
+        r_st = 3 * stereo.size() - 3 * len(landmarks) - 6 * len(poses)
+        return _Groups(imu_at, stereo, 6 * len(imu_at), r_st)
+
+    def imu_ratio(self, graph: gtsam.NonlinearFactorGraph, result: gtsam.Values) -> float:
+        """Chi-square per redundancy of the IMU factors of `graph` over that of the stereo
+        factors (Huber: stereo outliers count linearly)."""
+        chi_imu = 0.0
+        for i in self.imu_at:
+            chi_imu += 2.0 * graph.at(i).error(result)
+        chi_st = 2.0 * self.stereo.error(result)  # in C++, summed in the same order
+        if self.r_imu <= 0 or self.r_st <= 0 or chi_st <= 0.0:
+            return math.nan
+        return (chi_imu / self.r_imu) / (chi_st / self.r_st)
 
 
 def _imu_rescaled(
-    seg: SegmentGraph, graph: gtsam.NonlinearFactorGraph, imu: ImuModel, accel_scale: float
+    seg: SegmentGraph,
+    graph: gtsam.NonlinearFactorGraph,
+    imu_at: list[int],
+    imu: ImuModel,
+    accel_scale: float,
 ) -> gtsam.NonlinearFactorGraph:
-    """The graph with every IMU factor preintegrated again, the accelerometer's covariances
-    scaled."""
+    """The graph with every IMU factor (at the positions `imu_at`) preintegrated again, the
+    accelerometer's covariances scaled; the other factors are shared."""
     params = imu.params_scaled(accel_scale)
     t = seg.kf_times
-    out = gtsam.NonlinearFactorGraph()
-    for i in range(graph.size()):
+    out = gtsam.NonlinearFactorGraph(graph)
+    for i in imu_at:
         f = graph.at(i)
-        if isinstance(f, gtsam.CombinedImuFactor):
-            x0, v0, x1, v1, b0, b1 = f.keys()
-            k = gtsam.Symbol(x1).index() - seg.kf_index0
-            pim = gtsam.PreintegratedCombinedMeasurements(
-                params, f.preintegratedMeasurements().biasHat()
-            )
-            integrate(pim, imu.data, t[k - 1], t[k])
-            f = gtsam.CombinedImuFactor(x0, v0, x1, v1, b0, b1, pim)
-        out.add(f)
+        assert isinstance(f, gtsam.CombinedImuFactor)
+        x0, v0, x1, v1, b0, b1 = f.keys()
+        k = gtsam.Symbol(x1).index() - seg.kf_index0
+        pim = gtsam.PreintegratedCombinedMeasurements(
+            params, f.preintegratedMeasurements().biasHat()
+        )
+        integrate(pim, imu.data, t[k - 1], t[k])
+        out.replace(i, gtsam.CombinedImuFactor(x0, v0, x1, v1, b0, b1, pim))
     return out
 
 
