@@ -116,6 +116,29 @@ def test_mcap_holds_sensor_streams_and_estimate(run_out: Path) -> None:
     assert counts["/tf_static"] >= 2  # body->sensors, and world->gt_world (overlay)
 
 
+def test_tracking_every_second_frame_writes_every_image(v101_micro: Path, tmp_path: Path) -> None:
+    """`frontend.track_every: 2` on real images: every frame has a pose and its images in
+    run.mcap; /slam/stats only for the frames tracked (plots join them); the summary says how
+    many got the IMU's pose."""
+    from mcap.reader import make_reader
+
+    cfg = tmp_path / "every2.yaml"
+    cfg.write_text("frontend:\n  track_every: 2\n")
+    out = tmp_path / "o"
+    args = ["run", str(v101_micro), "-o", str(out), "--end", "1.0", "--no-progress"]
+    assert main([*args, "--config", str(cfg)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    n, between = summary["frames"], summary["track_paths"]["imu_between"]
+    assert summary["frames_with_pose"] == n >= 19 and n // 2 - 1 <= between <= n // 2
+    assert "imu_between" in (out / "summary.txt").read_text()
+    counts: dict[str, int] = {}
+    with open(out / "run.mcap", "rb") as f:
+        for _, channel, _ in make_reader(f).iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    assert counts["/cam0/image_raw"] == counts["/cam1/image_raw"] == counts["/slam/pose"] == n
+    assert counts["/slam/stats"] == n - between
+
+
 def test_bad_config_is_a_clean_error(
     v101_micro: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -18,6 +18,9 @@ the frame's time):
 | /groundtruth/drone | visualization_msgs/MarkerArray | the Firefly on `gt_body` (green) |
 | /slam/places | visualization_msgs/MarkerArray | loops, relocalizations, merges (`PLACE_RGBA`) |
 
+A frame left out by `frontend.track_every` has no /slam/features and no /slam/stats (nothing
+was counted; plots join the tracked frames).
+
 Per keyframe: /slam/path (nav_msgs/Path of the segment's smoothed keyframes) and
 /slam/landmarks (sensor_msgs/PointCloud2 of the smoother's active map, in `world`).
 At the end: /slam/landmarks with the final (batch-optimised) map, /slam/path_final with the
@@ -41,7 +44,7 @@ from eurocslam.geometry import F64, inv_T, make_T, quat_wxyz_to_rot, rot_z
 from eurocslam.io import drone, ros2
 from eurocslam.io.sensor_streams import FRAME_GT_BODY, FRAME_GT_WORLD, SensorStreams
 from eurocslam.io.sink import Sink
-from eurocslam.pipeline.records import STATE_CODE, FrameOutput, RunResult
+from eurocslam.pipeline.records import STATE_CODE, FrameOutput, PipelineState, RunResult
 
 WORLD = "world"
 BODY = "body"
@@ -189,22 +192,24 @@ class SlamMcapWriter:
             every = max(1, self.cfg.landmarks_every_n_keyframes)
             if self._n_kf % every == 0 and lm is not None and len(lm):
                 self._w("/slam/landmarks", ros2.POINT_CLOUD2, t, ros2.point_cloud2(t, WORLD, lm))
-        stats = [
-            STATE_CODE[out.state],
-            fr.n_features if fr else 0,
-            fr.n_stereo if fr else 0,
-            fr.n_tracked if fr else 0,
-            out.n_active_landmarks,
-            out.segment,
-            1.0 if out.is_keyframe else 0.0,
-            fr.n_reused if fr else 0,
-        ]
-        self._w(
-            "/slam/stats",
-            ros2.FLOAT64_MULTI_ARRAY,
-            t,
-            ros2.float64_multi_array(stats, STATS_LABELS),
-        )
+        # a frame left out by frontend.track_every has no counts: the plots join tracked frames
+        if fr is not None or out.state != PipelineState.TRACKING:
+            stats = [
+                STATE_CODE[out.state],
+                fr.n_features if fr else 0,
+                fr.n_stereo if fr else 0,
+                fr.n_tracked if fr else 0,
+                out.n_active_landmarks,
+                out.segment,
+                1.0 if out.is_keyframe else 0.0,
+                fr.n_reused if fr else 0,
+            ]
+            self._w(
+                "/slam/stats",
+                ros2.FLOAT64_MULTI_ARRAY,
+                t,
+                ros2.float64_multi_array(stats, STATS_LABELS),
+            )
         if out.nav is not None:
             nav = out.nav
             self._w(

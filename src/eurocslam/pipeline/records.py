@@ -46,7 +46,7 @@ class FrameOutput:
     T_world_body: F64 | None  # online pose (None: no estimate for this frame)
     segment: int
     is_keyframe: bool
-    frontend: FrontendResult | None
+    frontend: FrontendResult | None  # None: not tracked (before the init, or track_every)
     nav: NavEstimate | None  # latest backend state (velocity, biases)
     reset_reason: str = ""  # non-empty when this frame ended a segment
     n_keyframes: int = 0  # keyframes of the current segment so far
