@@ -58,7 +58,8 @@ class FeatureStream:
         if workers is None:
             ex = self.extractor
             for n, frame in enumerate(frames):
-                yield frame, ex.without_extraction(frame, n) or ex.extract(frame)
+                local = ex.without_extraction(frame, n)
+                yield frame, ex.extract(frame) if local is None else local
             return
         try:
             yield from workers.stream(frames)

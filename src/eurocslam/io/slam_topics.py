@@ -18,8 +18,8 @@ the frame's time):
 | /groundtruth/drone | visualization_msgs/MarkerArray | the Firefly on `gt_body` (green) |
 | /slam/places | visualization_msgs/MarkerArray | loops, relocalizations, merges (`PLACE_RGBA`) |
 
-A frame left out by `frontend.track_every` has no /slam/features and no /slam/stats (nothing
-was counted; plots join the tracked frames).
+A frame left out by `frontend.track_every` while tracking has no /slam/features and no
+/slam/stats (nothing was counted; plots join the tracked frames).
 
 Per keyframe: /slam/path (nav_msgs/Path of the segment's smoothed keyframes) and
 /slam/landmarks (sensor_msgs/PointCloud2 of the smoother's active map, in `world`).
@@ -192,7 +192,8 @@ class SlamMcapWriter:
             every = max(1, self.cfg.landmarks_every_n_keyframes)
             if self._n_kf % every == 0 and lm is not None and len(lm):
                 self._w("/slam/landmarks", ros2.POINT_CLOUD2, t, ros2.point_cloud2(t, WORLD, lm))
-        # a frame left out by frontend.track_every has no counts: the plots join tracked frames
+        # a frame left out by frontend.track_every while tracking has no counts: the plots
+        # join the tracked frames
         if fr is not None or out.state != PipelineState.TRACKING:
             stats = [
                 STATE_CODE[out.state],

@@ -100,3 +100,13 @@ def extrapolate_online(online: list[tuple[int, F64, int]], segment: int, t: int)
         return pts[-1][1]
     (ta, Ta, _), (tb, Tb, _) = pts
     return extrapolate(Ta, Tb, (t - tb) / (tb - ta))
+
+
+def interpolate_between(records: list[FrameRecord], a: tuple[int, F64], b: tuple[int, F64]) -> None:
+    """Give the records strictly between two tracked poses `a` and `b` (time, pose; `b`'s record
+    last) poses interpolated between them (constant body-frame twist)."""
+    (ta, Ta), (tb, Tb) = a, b
+    for rec in reversed(records[:-1]):
+        if rec.t_ns <= ta:
+            break
+        rec.T_chain = extrapolate(Ta, Tb, (rec.t_ns - ta) / (tb - ta) - 1.0)

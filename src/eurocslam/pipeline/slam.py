@@ -271,9 +271,10 @@ class SlamPipeline(Startup):
 
     def _between(self, t: int) -> FrameOutput:
         """A frame left out by `frontend.track_every`: the IMU's motion since the last tracked
-        frame is its pose; in a dynamic start's VO window, the window's last motion."""
+        frame is its pose (across an IMU dropout, the estimator's constant velocity); in a
+        dynamic start's VO window, the motion between its last two tracked frames."""
         if self.state == PipelineState.INIT:
-            T_vo = extrapolate_online(self._online, self.segment.index, t) if self._window else None
+            T_vo = extrapolate_online([(w, T, 0) for w, T in self._window[-2:]], 0, t)
             if T_vo is not None:
                 self.segment.records.append(FrameRecord(t, T_vo, -1))
             return self._emit(t, PipelineState.INIT, T_vo, None)

@@ -31,7 +31,7 @@ from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult, MapCorrection
 from eurocslam.geometry import F64, make_T
 from eurocslam.pipeline.records import FrameOutput, PipelineState
-from eurocslam.pipeline.segments import FrameRecord, Segment
+from eurocslam.pipeline.segments import FrameRecord, Segment, interpolate_between
 from eurocslam.pipeline.summary import RunSummary
 
 # an optical camera (x right, y down, z forward) held level, looking along world x (z up)
@@ -116,6 +116,8 @@ class Startup:
             return self._emit(t, PipelineState.INIT, None, fr)
         self._window.append((t, fr.T_world_body))
         seg.records.append(FrameRecord(t, fr.T_world_body, -1))
+        if len(self._window) > 1:  # frames left out (track_every) since the last: interpolated
+            interpolate_between(seg.records, self._window[-2], self._window[-1])
         span = (t - self._window[0][0]) * 1e-9
         c = self.cfg.init
         if span >= c.dynamic_window_s and len(self._window) >= c.dynamic_min_keyframes:
