@@ -67,8 +67,11 @@ def _shape(img: U8 | None) -> tuple[int, ...]:
     return () if img is None else img.shape
 
 
-def _no_stereo() -> StereoMatches:
-    return StereoMatches(np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.intp))
+def _unusable(t_ns: int, problem: str) -> FrameFeatures:
+    """The features of a frame not extracted: none, and why (`problem`)."""
+    e = Features.empty()
+    no_stereo = StereoMatches(np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.intp))
+    return FrameFeatures(t_ns, problem, e, e, no_stereo, {})
 
 
 class Extractor:
@@ -109,19 +112,14 @@ class Extractor:
         """The features of a stream's `n`th frame (from 0) where they need no extraction: a
         frame between two tracked ones (SKIPPED) or one that fails the image check; None for a
         frame to extract."""
-        if n % self.config.track_every:
-            e = Features.empty()
-            return FrameFeatures(frame.t_ns, SKIPPED, e, e, _no_stereo(), {})
-        if self.frame_problem(frame) is not None:
-            return self.extract(frame)
-        return None
+        problem = SKIPPED if n % self.config.track_every else self.frame_problem(frame)
+        return None if problem is None else _unusable(frame.t_ns, problem)
 
     def extract(self, frame: StereoFrame) -> FrameFeatures:
         """Rectify, ORB on both images, stereo matching."""
         problem = self.frame_problem(frame)
         if problem is not None or frame.left is None or frame.right is None:
-            e = Features.empty()
-            return FrameFeatures(frame.t_ns, problem or "missing", e, e, _no_stereo(), {})
+            return _unusable(frame.t_ns, problem or "missing")
         t0 = time.perf_counter()
         left = self.rectifier.rectify_left(frame.left)
         right = self.rectifier.rectify_right(frame.right)

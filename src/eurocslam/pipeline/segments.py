@@ -90,15 +90,14 @@ def assemble(
     )
 
 
-def extrapolate_online(online: list[tuple[int, F64, int]], segment: int, t: int) -> F64 | None:
-    """Pose at `t` extrapolated from the last two online poses `(t_ns, T, segment)` when both
-    are of `segment`; the last alone when only it is; None when neither is."""
-    pts = [o for o in online[-2:] if o[2] == segment]
-    if not pts:
+def extrapolate_last(poses: list[tuple[int, F64]], t: int) -> F64 | None:
+    """Pose at `t` extrapolated from the last two `(t_ns, T)` of `poses` (constant body-frame
+    twist); the last alone when it is the only one; None when there is none."""
+    if not poses:
         return None
-    if len(pts) == 1 or pts[1][0] <= pts[0][0]:
-        return pts[-1][1]
-    (ta, Ta, _), (tb, Tb, _) = pts
+    if len(poses) == 1 or poses[-1][0] <= poses[-2][0]:
+        return poses[-1][1]
+    (ta, Ta), (tb, Tb) = poses[-2:]
     return extrapolate(Ta, Tb, (t - tb) / (tb - ta))
 
 

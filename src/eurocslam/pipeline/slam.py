@@ -56,7 +56,7 @@ from eurocslam.pipeline.records import (
     PipelineState,
     RunResult,
 )
-from eurocslam.pipeline.segments import FrameRecord, Segment, assemble, extrapolate_online
+from eurocslam.pipeline.segments import FrameRecord, Segment, assemble, extrapolate_last
 from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
 from eurocslam.pipeline.summary import IMU_BETWEEN, RunSummary, cpu_seconds
@@ -274,7 +274,7 @@ class SlamPipeline(Startup):
         frame is its pose (across an IMU dropout, the estimator's constant velocity); in a
         dynamic start's VO window, the motion between its last two tracked frames."""
         if self.state == PipelineState.INIT:
-            T_vo = extrapolate_online([(w, T, 0) for w, T in self._window[-2:]], 0, t)
+            T_vo = extrapolate_last(self._window, t)
             if T_vo is not None:
                 self.segment.records.append(FrameRecord(t, T_vo, -1))
             return self._emit(t, PipelineState.INIT, T_vo, None)
@@ -292,7 +292,8 @@ class SlamPipeline(Startup):
         pred = self.est.predict(t)
         if not self.cfg.inertial:
             # visual-only: constant velocity from the last two poses (the tracker's own model)
-            T_cv = extrapolate_online(self._online, self.segment.index, t)
+            seg = self.segment.index
+            T_cv = extrapolate_last([(o[0], o[1]) for o in self._online[-2:] if o[2] == seg], t)
             T_cv = nav.T_world_body if T_cv is None else T_cv
             pred = NavEstimate(t, T_cv, pred.v_world, pred.bg, pred.ba)
         # blind for longer than the prediction is worth: no prior, no new map at it
