@@ -23,7 +23,7 @@ _SWITCHES = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from eurocslam.synth.sequence import SynthSpec
+    from eurocslam.synth.spec import SynthSpec
 
     d = SynthSpec()
     p.add_argument("out", type=Path, metavar="OUT", help="output sequence folder (gets mav0/)")
@@ -117,7 +117,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def spec_from_args(args: argparse.Namespace):  # -> SynthSpec
     from eurocslam.errors import DatasetError
-    from eurocslam.synth.sequence import TINY_DURATION_S, SynthSpec
+    from eurocslam.synth.spec import TINY_DURATION_S, SynthSpec
 
     duration = args.duration
     if args.tiny and duration is None:

@@ -13,14 +13,13 @@ depth maps, for tests). `SynthSpec(trajectory=A, world_from=(A, B))` and
 `SynthSpec(trajectory=B, world_from=(A, B))` fly through one shared world (`shared_world.py`).
 """
 
-from eurocslam.synth.sequence import (
-    DEFAULT_DURATION_S,
-    TINY_DURATION_S,
-    Scene,
-    SynthSpec,
-    synthesize,
-)
-from eurocslam.synth.world import Marker
+from typing import TYPE_CHECKING, Any
+
+from eurocslam.synth.spec import DEFAULT_DURATION_S, TINY_DURATION_S, SynthSpec
+
+if TYPE_CHECKING:
+    from eurocslam.synth.sequence import Scene, synthesize
+    from eurocslam.synth.world import Marker
 
 __all__ = [
     "DEFAULT_DURATION_S",
@@ -30,3 +29,15 @@ __all__ = [
     "SynthSpec",
     "synthesize",
 ]
+
+# the renderer (OpenCV, SciPy) loads on first use: the command line builds every command's
+# arguments from `SynthSpec`'s defaults and must not pay for it
+_LAZY = {"Scene": "sequence", "synthesize": "sequence", "Marker": "world"}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)

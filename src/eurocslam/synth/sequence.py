@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
-from numpy.typing import NDArray
 
 from eurocslam.dataset.calib import StereoRig, calib_folder, default_rig, load_rig
 from eurocslam.errors import CalibrationError, DatasetError
@@ -25,6 +24,7 @@ from eurocslam.synth.imu import (
 )
 from eurocslam.synth.render import CameraModel, camera_model, cast_and_shade
 from eurocslam.synth.shared_world import SharedWorld, build_shared_world, check_flight_inside
+from eurocslam.synth.spec import DEFAULT_DURATION_S, SynthSpec
 from eurocslam.synth.trajectory import (
     BUILTIN_T0_NS,
     Motion,
@@ -32,97 +32,16 @@ from eurocslam.synth.trajectory import (
     motion_from_groundtruth,
     read_groundtruth_file,
 )
-from eurocslam.synth.world import Marker, World, build_world
+from eurocslam.synth.world import World, build_world
 
 # bump whenever the same spec would give different files (caches compare it)
 GENERATOR_REVISION = 5
-DEFAULT_DURATION_S = 30.0
-TINY_DURATION_S = 2.0
 # sensor model constants (documented in docs/synthetic.md)
 READ_NOISE_DN = 1.5  # read noise sigma [DN]
 SHOT_NOISE_GAIN = 0.05  # shot-noise variance per DN of signal
 EXPOSURE_SPREAD = 0.15  # log-gain amplitude of the slow exposure changes
 BLUR_EXPOSURE_S = 0.008  # exposure window for motion blur
 BLUR_SUBFRAMES = 4  # renders besides the one at the frame time
-
-
-@dataclass(frozen=True)
-class SynthSpec:
-    """What to synthesise. Identical specs give byte-identical sequences.
-
-    Motion: the built-in flight (`trajectory=None`, `duration_s` seconds, default 30) or a given
-    ground truth (`trajectory`: EuRoC ASL CSV or TUM), cropped to [`start_s`, `end_s`] seconds
-    after its first pose (`duration_s`, when given, caps the length). `imu`: real IMU rows
-    (ASL imu0/data.csv) to ship instead of simulated ones; the images then follow the motion
-    those rows measured (high frequency) on the ground truth (low frequency), in a world turned
-    onto the accelerometer's gravity (`fusion.py`; `knot_dt_s` is unused). `calib`: a folder
-    with cam0/cam1/imu0 sensor.yaml (default: EuRoC's, shipped in the package).
-    """
-
-    duration_s: float | None = None
-    seed: int = 0
-    trajectory: Path | None = None
-    imu: Path | None = None
-    start_s: float | None = None
-    end_s: float | None = None
-    calib: Path | None = None
-    image_noise: bool = True
-    vignetting: bool = True
-    exposure: bool = True
-    motion_blur: bool = False
-    imu_noise: bool = True
-    imu_bias: bool = True
-    max_speed: float = 1.5
-    max_yaw_rate: float = 1.0
-    knot_dt_s: float = 0.1
-    marker: Marker | None = None
-    # (start, end) seconds from the first frame: both cameras black and no IMU rows in between
-    # (the ground truth goes on): a sensor blackout, for relocalization and merging tests
-    blackout: tuple[float, float] | None = None
-    # ground truths of one place (one frame) the world is built around instead of `trajectory`
-    # alone: every sequence rendered with the same files and seed flies through the same world
-    # (`shared_world.py`)
-    world_from: tuple[Path, ...] | None = None
-
-    @classmethod
-    def tiny(cls, seed: int = 0, **kw: Any) -> SynthSpec:
-        """A ~2 s built-in sequence (40 stereo pairs): a few seconds to make, for tests."""
-        kw.setdefault("duration_s", TINY_DURATION_S)
-        return cls(seed=seed, **kw)
-
-    def ideal(self) -> SynthSpec:
-        """The same spec with every realism switch off (no noise, biases, vignetting, ...)."""
-        return replace(
-            self,
-            image_noise=False,
-            vignetting=False,
-            exposure=False,
-            motion_blur=False,
-            imu_noise=False,
-            imu_bias=False,
-        )
-
-    def to_json(self) -> dict[str, Any]:
-        d = asdict(self)
-        for k in ("trajectory", "imu", "calib"):
-            if d[k] is not None:
-                d[k] = str(Path(d[k]).resolve())
-        if d["blackout"] is None:
-            del d["blackout"]  # the specs made before it existed keep their identity
-        else:
-            d["blackout"] = list(d["blackout"])
-        if d["world_from"] is None:
-            del d["world_from"]  # (likewise)
-        else:
-            d["world_from"] = [str(Path(p).resolve()) for p in d["world_from"]]
-        return d
-
-    def in_blackout(self, t_s: F64) -> NDArray[np.bool_]:
-        """Which times (seconds from the first frame) fall in the blackout."""
-        t = np.asarray(t_s, dtype=np.float64)
-        if self.blackout is None:
-            return np.zeros(t.shape, dtype=bool)
-        return (t >= self.blackout[0]) & (t <= self.blackout[1])
 
 
 @dataclass
