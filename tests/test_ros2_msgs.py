@@ -73,6 +73,16 @@ ALL_TYPES = [
 ]
 
 
+def test_shipped_schemas_are_rosbags_own() -> None:
+    """The schema texts shipped in data/ (no rosbags type store at start-up) are the ones rosbags
+    generates; if this fails after a rosbags upgrade, `ros2.write_schema_file()` regenerates."""
+    assert set(ros2.SHIPPED_SCHEMAS) == set(ALL_TYPES)
+    for msgtype in ALL_TYPES:
+        assert ros2.schema_text(msgtype) == ros2.generated_schema_text(msgtype), msgtype
+    # a type not shipped comes from rosbags
+    assert ros2.schema_text("std_msgs/msg/Int32") == "int32 data\n"
+
+
 @pytest.mark.parametrize("msgtype", ALL_TYPES)
 def test_schema_root_first_and_dependency_names_match_fields(msgtype: str) -> None:
     text = ros2.schema_text(msgtype)
