@@ -64,10 +64,11 @@ def final_batch(
     chi-square per redundancy against the stereo factors' (`imu_check`). When the IMU disagrees
     with the vision by more than `reweight_above` times what its noise model allows (a real
     accelerometer whose bias wanders faster than its datasheet says), the accelerometer's noise
-    and bias-walk covariances are scaled by the ratio and the batch runs again from the last
-    result, until the ratio is near 1 (at most `REWEIGHT_ROUNDS` rounds). On V1_01 the
-    accelerometer carries the disagreement (its residual components 15x a simulated IMU's, the
-    gyro's 5x): scaling the gyro's too left the keyframes 0.2-0.35 mm worse.
+    and bias-walk covariances are scaled by the ratio and the batch takes one more iteration from
+    the last result, until the ratio is near 1 (at most `REWEIGHT_ROUNDS` rounds); then it
+    converges at that scale (`max_iterations`). On V1_01 the accelerometer carries the
+    disagreement (its residual components 15x a simulated IMU's, the gyro's 5x): scaling the
+    gyro's too left the keyframes 0.2-0.35 mm worse.
 
     Falls back to the smoother's estimates if the batch fails to converge."""
     vals = gtsam.Values()
@@ -153,23 +154,36 @@ def _reweight_imu(
     imu: ImuModel,
     above: float,
 ) -> tuple[gtsam.Values, ImuCheck]:
-    """Variance-component rounds on the accelerometer (see `final_batch`): the result of the
-    last round that converged, and the check."""
+    """Variance-component rounds on the accelerometer (see `final_batch`): the batch
+    converged at the scale of the last round that succeeded, and the check."""
     groups = _Groups.of(graph)
     ratio = first = groups.imu_ratio(graph, result)
-    scale, after = 1.0, math.nan
-    if 0.0 < above < ratio:
+    if not 0.0 < above < ratio:
+        return result, ImuCheck(first, 1.0, math.nan)
+    # a round needs only the residuals at its scale, not a converged batch: one iteration each,
+    # then the batch converges at the last scale (on V1_01: 8 iterations instead of 10)
+    iterations = params.getMaxIterations()
+    params.setMaxIterations(1)
+    scale, g = 1.0, graph
+    try:
         for _ in range(REWEIGHT_ROUNDS):
             trial = scale * ratio
-            g = _imu_rescaled(seg, graph, groups.imu_at, imu, trial)
-            again = _optimize(g, result, params, kf_estimates)
+            g_trial = _imu_rescaled(seg, graph, groups.imu_at, imu, trial)
+            again = _optimize(g_trial, result, params, kf_estimates)
             if again is None:
                 break
-            scale, result = trial, again
-            ratio = after = groups.imu_ratio(g, result)
-            if ratio < REWEIGHT_DONE:
+            scale, result, g = trial, again, g_trial
+            ratio = groups.imu_ratio(g, result)
+            if not ratio >= REWEIGHT_DONE:  # near 1, or NaN
                 break
-    return result, ImuCheck(first, scale, after)
+    finally:
+        params.setMaxIterations(iterations)
+    if scale == 1.0:
+        return result, ImuCheck(first, scale, math.nan)
+    final = _optimize(g, result, params, kf_estimates)
+    if final is not None:
+        result = final
+    return result, ImuCheck(first, scale, groups.imu_ratio(g, result))
 
 
 @dataclass(frozen=True)
