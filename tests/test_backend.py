@@ -8,6 +8,7 @@ import gtsam
 import numpy as np
 import pytest
 
+import eurocslam.backend.final_batch as final_batch_module
 from eurocslam.backend.estimator import KeyframeEstimator
 from eurocslam.backend.initializer import (
     InitialState,
@@ -427,12 +428,23 @@ def test_final_batch_takes_the_observations_beyond_the_smoother_cap() -> None:
     assert rekeyed
 
 
-def test_final_batch_loosens_an_imu_that_disagrees_with_the_vision() -> None:
+def test_final_batch_loosens_an_imu_that_disagrees_with_the_vision(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """Variance-component rounds: an accelerometer whose bias wanders far faster than its noise
     model allows (0.15 m/s^2 over seconds; the model: a 3x datasheet random walk) leaves IMU
     residuals many times what the stereo residuals leave, and the final batch scales the
     accelerometer's covariances until they match: the final trajectory then follows the
-    vision. A consistent IMU stays as it is."""
+    vision. Each round takes one iteration, then the batch converges at the last scale. A
+    consistent IMU stays as it is."""
+    caps: list[int] = []  # each Levenberg-Marquardt run's iteration cap
+    optimize = final_batch_module._optimize
+
+    def counting(graph, vals, params, kf):  # type: ignore[no-untyped-def]
+        caps.append(params.getMaxIterations())
+        return optimize(graph, vals, params, kf)
+
+    monkeypatch.setattr(final_batch_module, "_optimize", counting)
     m = lissajous_motion(8.0)
 
     def final_rmse(est: KeyframeEstimator) -> tuple[float, ImuCheck]:
@@ -452,7 +464,10 @@ def test_final_batch_loosens_an_imu_that_disagrees_with_the_vision() -> None:
     )
     bad = ImuData(imu.t_ns, imu.gyro, imu.accel + wander)
     _, est, _ = _run_sim(RunConfig(backend=SIM_BACKEND), imu=bad)
+    caps.clear()
     reweighted, check = final_rmse(est)
+    cap = RunConfig().backend.final_batch_max_iterations
+    assert caps[0] == cap and caps[-1] == cap and set(caps[1:-1]) == {1}, caps
     assert check.ratio > 5.0
     assert check.accel_scale > check.ratio  # rounds until the ratio is near 1
     assert check.ratio_after < 1.25

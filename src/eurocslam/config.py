@@ -101,13 +101,15 @@ class BackendConfig:
     correct_landmarks: bool = True  # push smoothed landmark positions back to the frontend
     correct_whole_map: bool = True  # move the rest of the frontend map with the keyframe
     final_batch: bool = True  # one full Levenberg-Marquardt over each segment at the end
-    final_batch_max_iterations: int = 3  # per round; it starts from the smoother: converges fast
+    # Levenberg-Marquardt iterations of the final batch, and again after the IMU rounds (one
+    # iteration each); it starts from the smoother: converges fast
+    final_batch_max_iterations: int = 3
     # stereo observations per keyframe the final batch takes, the smoother's included (it runs
     # once: no per-frame cost); at most the smoother's cap: the smoother's alone
     final_max_landmarks_per_keyframe: int = 250
     # final batch: when the IMU factors' chi-square per redundancy exceeds the stereo factors'
-    # by more than this ratio, the accelerometer's covariances are scaled by it and the batch is
-    # run again (variance-component rounds; 0: never). Simulated IMUs: 0.4-0.8; V1_01's real: 4-5
+    # by more than this ratio, the accelerometer's covariances are scaled by it and the batch
+    # goes on (variance-component rounds; 0: never). Simulated IMUs: 0.4-0.8; V1_01's real: 8-13
     final_imu_reweight_above: float = 2.0
 
 

@@ -155,13 +155,15 @@ def _reweight_imu(
     above: float,
 ) -> tuple[gtsam.Values, ImuCheck]:
     """Variance-component rounds on the accelerometer (see `final_batch`): the batch
-    converged at the scale of the last round that succeeded, and the check."""
+    converged at the scale of the last round that succeeded, and the check; the batch as it
+    came when no round succeeded or it did not converge at that scale."""
     groups = _Groups.of(graph)
     ratio = first = groups.imu_ratio(graph, result)
     if not 0.0 < above < ratio:
         return result, ImuCheck(first, 1.0, math.nan)
     # a round needs only the residuals at its scale, not a converged batch: one iteration each,
     # then the batch converges at the last scale (on V1_01: 8 iterations instead of 10)
+    converged = result
     iterations = params.getMaxIterations()
     params.setMaxIterations(1)
     scale, g = 1.0, graph
@@ -178,12 +180,10 @@ def _reweight_imu(
                 break
     finally:
         params.setMaxIterations(iterations)
-    if scale == 1.0:
-        return result, ImuCheck(first, scale, math.nan)
-    final = _optimize(g, result, params, kf_estimates)
-    if final is not None:
-        result = final
-    return result, ImuCheck(first, scale, groups.imu_ratio(g, result))
+    final = None if g is graph else _optimize(g, result, params, kf_estimates)
+    if final is None:  # no round, or no convergence at the last scale: the batch before them
+        return converged, ImuCheck(first, 1.0, math.nan)
+    return final, ImuCheck(first, scale, groups.imu_ratio(g, final))
 
 
 @dataclass(frozen=True)

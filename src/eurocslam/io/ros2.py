@@ -111,7 +111,7 @@ def schema_text(msgtype: str) -> str:
 
 def write_schema_file() -> Path:
     """Regenerate `data/ros2_humble_schemas.json` from rosbags, after a rosbags upgrade that
-    changes a definition (`test_ros2_schemas.py` says so):
+    changes a definition (`test_ros2_msgs.py` says so):
     `python -c "from eurocslam.io.ros2 import write_schema_file as w; w()"`."""
     path = Path(__file__).resolve().parents[1] / "data" / _SCHEMA_FILE
     texts = {t: generated_schema_text(t) for t in SHIPPED_SCHEMAS}

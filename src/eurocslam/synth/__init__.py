@@ -15,11 +15,10 @@ depth maps, for tests). `SynthSpec(trajectory=A, world_from=(A, B))` and
 
 from typing import TYPE_CHECKING, Any
 
-from eurocslam.synth.spec import DEFAULT_DURATION_S, TINY_DURATION_S, SynthSpec
+from eurocslam.synth.spec import DEFAULT_DURATION_S, TINY_DURATION_S, Marker, SynthSpec
 
 if TYPE_CHECKING:
     from eurocslam.synth.sequence import Scene, synthesize
-    from eurocslam.synth.world import Marker
 
 __all__ = [
     "DEFAULT_DURATION_S",
@@ -32,12 +31,11 @@ __all__ = [
 
 # the renderer (OpenCV, SciPy) loads on first use: the command line builds every command's
 # arguments from `SynthSpec`'s defaults and must not pay for it
-_LAZY = {"Scene": "sequence", "synthesize": "sequence", "Marker": "world"}
+if not TYPE_CHECKING:  # (type checkers see the imports above)
 
+    def __getattr__(name: str) -> Any:
+        if name not in ("Scene", "synthesize"):
+            raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+        from eurocslam.synth import sequence
 
-def __getattr__(name: str) -> Any:
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    return getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        return getattr(sequence, name)

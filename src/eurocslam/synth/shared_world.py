@@ -27,7 +27,8 @@ import numpy as np
 
 from eurocslam.errors import DatasetError, EurocSlamError
 from eurocslam.geometry import F64
-from eurocslam.synth.world import Marker, World, build_world
+from eurocslam.synth.spec import Marker
+from eurocslam.synth.world import World, build_world
 
 WORLD_POINTS_PER_FLIGHT = 4000  # positions per flight the world is laid out around (as one flight)
 MIN_ROOM_MARGIN_M = 0.05  # a camera centre at least this far inside the room's faces

@@ -5,18 +5,27 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from eurocslam.geometry import F64
 
-if TYPE_CHECKING:
-    from eurocslam.synth.world import Marker
-
 DEFAULT_DURATION_S = 30.0
 TINY_DURATION_S = 2.0
+
+
+@dataclass(frozen=True)
+class Marker:
+    """A small plate with a white disc on black, its disc centre at `center`, facing `-axis`
+    or `+axis` (`side`), for projection tests."""
+
+    center: tuple[float, float, float]
+    axis: int = 1
+    side: int = 0  # 0: the disc is on the plate's lower-coordinate face
+    size: float = 0.2
+    disc_radius: float = 0.05
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from eurocslam.geometry import F64
+from eurocslam.synth.spec import Marker
 
 TEXELS_PER_M = 200.0  # 5 mm texels
 MAX_TEX = 4096  # texels per face side (larger faces get coarser texels)
@@ -28,18 +29,6 @@ GUTTER = ALIGN  # replicated border around each texture in the atlas (1 texel at
 ATLAS_WIDTH = 8192
 # texture-plane axes (s, t) for a face whose normal is along axis a
 ST_AXES = ((1, 2), (0, 2), (0, 1))
-
-
-@dataclass(frozen=True)
-class Marker:
-    """A small plate with a white disc on black, its disc centre at `center`, facing `-axis`
-    or `+axis` (`side`), for projection tests."""
-
-    center: tuple[float, float, float]
-    axis: int = 1
-    side: int = 0  # 0: the disc is on the plate's lower-coordinate face
-    size: float = 0.2
-    disc_radius: float = 0.05
 
 
 @dataclass
