@@ -18,12 +18,14 @@ usage: .venv/bin/python benchmarks/bench_ab.py --sequence V2_03 [--duration 60] 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shlex
 import statistics
 import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,6 +62,24 @@ def checkout(rev: str, into: Path) -> Path:
     if r.returncode != 0:
         raise SystemExit(f"git revision {rev!r}: {r.stderr.strip()}")
     return into / "src"
+
+
+@contextlib.contextmanager
+def checked_out(variants: list[Variant], tmp: Path) -> Iterator[None]:
+    """Every variant's `src` checked out (temporary worktrees, removed on the way out)."""
+    worktrees = []
+    try:
+        for v in variants:
+            v.src = checkout(v.rev, tmp / f"tree_{v.name}")
+            if v.rev != ".":
+                worktrees.append(v.src.parent)
+        yield
+    finally:
+        for w in worktrees:
+            subprocess.run(
+                ["git", "-C", str(REPO), "worktree", "remove", "--force", str(w)],
+                capture_output=True,
+            )
 
 
 def run_once(v: Variant, seq: Path, out: Path, end: float | None) -> dict[str, float]:
@@ -102,32 +122,20 @@ def main() -> int:
     args.cache.mkdir(parents=True, exist_ok=True)
     seq = make_replica(args.sequence, args.cache, duration, args.seed)
 
-    with tempfile.TemporaryDirectory(prefix="bench_ab_") as tmp:
-        worktrees = []
-        try:
+    with tempfile.TemporaryDirectory(prefix="bench_ab_") as tmp, checked_out(variants, Path(tmp)):
+        probes = [machine_speed(seq)]
+        for k in range(args.runs):
             for v in variants:
-                v.src = checkout(v.rev, Path(tmp) / f"tree_{v.name}")
-                if v.rev != ".":
-                    worktrees.append(v.src.parent)
-            probes = [machine_speed(seq)]
-            for k in range(args.runs):
-                for v in variants:
-                    r = run_once(v, seq, Path(tmp) / f"out_{v.name}", duration)
-                    v.runs.append(r)
-                    print(
-                        f"  round {k + 1}/{args.runs} {v.name:<12} RTF {r['rtf']:.2f}  "
-                        f"wall {r['wall']:.1f} s  CPU {r['cpu']:.1f} s  "
-                        f"final ATE {r['ate_mm']:.2f} mm",
-                        file=sys.stderr,
-                        flush=True,
-                    )
-                probes.append(machine_speed(seq))
-        finally:
-            for w in worktrees:
-                subprocess.run(
-                    ["git", "-C", str(REPO), "worktree", "remove", "--force", str(w)],
-                    capture_output=True,
+                r = run_once(v, seq, Path(tmp) / f"out_{v.name}", duration)
+                v.runs.append(r)
+                print(
+                    f"  round {k + 1}/{args.runs} {v.name:<12} RTF {r['rtf']:.2f}  "
+                    f"wall {r['wall']:.1f} s  CPU {r['cpu']:.1f} s  "
+                    f"final ATE {r['ate_mm']:.2f} mm",
+                    file=sys.stderr,
+                    flush=True,
                 )
+            probes.append(machine_speed(seq))
 
     span = "full length" if duration is None else f"first {duration:g} s"
     print(

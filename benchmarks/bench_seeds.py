@@ -22,13 +22,12 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from bench_ab import Variant, checkout, parse_variant
-from bench_slam import EXE, REPO, SEQUENCES, make_replica, run_one
+from bench_ab import Variant, checked_out, parse_variant
+from bench_slam import EXE, SEQUENCES, make_replica, run_one
 
 
 def run_accuracy(v: Variant, seq: Path, out: Path, end: float | None) -> dict[str, float]:
@@ -85,30 +84,21 @@ def main() -> int:
     }
     # results[variant][sequence] = one dict per seed, in --seeds order
     results: dict[str, dict[str, list[dict[str, float]]]] = {v.name: {} for v in variants}
-    with tempfile.TemporaryDirectory(prefix="bench_seeds_") as tmp:
-        worktrees = []
-        try:
+    with (
+        tempfile.TemporaryDirectory(prefix="bench_seeds_") as tmp,
+        checked_out(variants, Path(tmp)),
+    ):
+        n, total = 0, len(replicas) * len(variants)
+        for (s, seed), seq in replicas.items():
             for v in variants:
-                v.src = checkout(v.rev, Path(tmp) / f"tree_{v.name}")
-                if v.rev != ".":
-                    worktrees.append(v.src.parent)
-            n, total = 0, len(replicas) * len(variants)
-            for (s, seed), seq in replicas.items():
-                for v in variants:
-                    r = run_accuracy(v, seq, Path(tmp) / f"out_{v.name}", duration)
-                    results[v.name].setdefault(s, []).append(r)
-                    n += 1
-                    print(
-                        f"  [{n}/{total}] {s} seed {seed} {v.name:<12} final ATE "
-                        f"{r['final_mm']:.2f} mm, online {r['online_mm']:.2f} mm",
-                        file=sys.stderr,
-                        flush=True,
-                    )
-        finally:
-            for w in worktrees:
-                subprocess.run(
-                    ["git", "-C", str(REPO), "worktree", "remove", "--force", str(w)],
-                    capture_output=True,
+                r = run_accuracy(v, seq, Path(tmp) / f"out_{v.name}", duration)
+                results[v.name].setdefault(s, []).append(r)
+                n += 1
+                print(
+                    f"  [{n}/{total}] {s} seed {seed} {v.name:<12} final ATE "
+                    f"{r['final_mm']:.2f} mm, online {r['online_mm']:.2f} mm",
+                    file=sys.stderr,
+                    flush=True,
                 )
     report(args, variants, results)
     if args.json:
