@@ -20,26 +20,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import sys
 import tempfile
 from pathlib import Path
 
-from bench_ab import Variant, checked_out, parse_variant
-from bench_slam import EXE, SEQUENCES, make_replica, run_one
-
-
-def run_accuracy(v: Variant, seq: Path, out: Path, end: float | None) -> dict[str, float]:
-    args = [*v.args, *(["--end", f"{end:g}"] if end is not None else [])]
-    env = dict(os.environ, PYTHONPATH=str(v.src))
-    r = run_one(seq, out, no_imu=False, mcap=False, extra_args=args, env=env)
-    if r["rc"] != 0:
-        raise SystemExit(f"{v.name}: eurocslam run {seq.name} failed: {' '.join(r['error'])}")  # type: ignore[arg-type]
-    return {
-        "final_mm": 1e3 * float(r["ate_final"]),  # type: ignore[arg-type]
-        "online_mm": 1e3 * float(r["ate_online"]),  # type: ignore[arg-type]
-    }
+from bench_ab import Variant, checked_out, parse_variant, run_once
+from bench_slam import EXE, SEQUENCES, make_replica
 
 
 def int_list(text: str) -> list[int]:
@@ -91,12 +78,12 @@ def main() -> int:
         n, total = 0, len(replicas) * len(variants)
         for (s, seed), seq in replicas.items():
             for v in variants:
-                r = run_accuracy(v, seq, Path(tmp) / f"out_{v.name}", duration)
+                r = run_once(v, seq, Path(tmp) / f"out_{v.name}", duration, mcap=False)
                 results[v.name].setdefault(s, []).append(r)
                 n += 1
                 print(
                     f"  [{n}/{total}] {s} seed {seed} {v.name:<12} final ATE "
-                    f"{r['final_mm']:.2f} mm, online {r['online_mm']:.2f} mm",
+                    f"{r['ate_mm']:.2f} mm, online {r['online_mm']:.2f} mm",
                     file=sys.stderr,
                     flush=True,
                 )
@@ -131,17 +118,17 @@ def report(
     changes: dict[str, list[float]] = {v.name: [] for v in variants}
     worse: dict[str, int] = {v.name: 0 for v in variants}
     for s in args.sequences:
-        ref = statistics.mean(r["final_mm"] for r in results[first][s])
+        ref = statistics.mean(r["ate_mm"] for r in results[first][s])
         for v in variants:
             runs = results[v.name][s]
-            mean = statistics.mean(r["final_mm"] for r in runs)
+            mean = statistics.mean(r["ate_mm"] for r in runs)
             change = mean / ref - 1.0
             changes[v.name].append(change)
             worse[v.name] += sum(
-                r["final_mm"] > b["final_mm"] for r, b in zip(runs, results[first][s], strict=True)
+                r["ate_mm"] > b["ate_mm"] for r, b in zip(runs, results[first][s], strict=True)
             )
             online = statistics.mean(r["online_mm"] for r in runs)
-            per_seed = " / ".join(f"{r['final_mm']:.2f}" for r in runs)
+            per_seed = " / ".join(f"{r['ate_mm']:.2f}" for r in runs)
             print(
                 f"| {s} | {v.name} | {per_seed} | {mean:.2f} | {100 * change:+.1f} % "
                 f"| {online:.2f} |"
