@@ -16,7 +16,7 @@ from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import GroundTruth, ImuData, PositionData, SkipReport, StereoFrame
 from eurocslam.eval.evaluate import evaluate
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.pipeline.records import PipelineState, RunResult
+from eurocslam.pipeline.records import FrameOutput, PipelineState, RunResult
 from eurocslam.pipeline.slam import SlamPipeline
 from eurocslam.trajectory import Trajectory
 
@@ -147,11 +147,18 @@ def test_tracking_one_frame_in_n(synth_seq: Path, every: int) -> None:
     black = set(range(40, 48))
     seq = FaultySource(open_sequence(synth_seq), black=black)
     cfg = config_from_dict({"frontend": {"track_every": every}, "init": {"mode": "dynamic"}})
-    res = SlamPipeline(seq, cfg).run()  # type: ignore[arg-type]
+    outs: list[FrameOutput] = []
+    res = SlamPipeline(seq, cfg).run(on_progress=outs.append)  # type: ignore[arg-type]
     s = res.summary
     assert s.coverage == 1.0 and not s.resets and s.init_modes == ["dynamic"], s.lines()
     extracted = [k for k in range(s.frames) if k % every == 0 and k not in black]
     assert len(s.timings_ms["orb"]) == len(extracted)
+    # left out: the frames between tracked ones (not those while lost: frames without images)
+    left_out = {k for k, o in enumerate(outs) if o.left_out}
+    assert (
+        {k for k in range(40) if k % every} <= left_out <= {k for k in range(s.frames) if k % every}
+    )
+    assert all(outs[k].frontend is None and outs[k].T_world_body is not None for k in left_out)
     # lost from the first black frame tracked (the ones before it are left out while tracking)
     assert s.state_frames["INIT"] >= 20 and s.state_frames["LOST"] >= len(black) - every + 1
     assert s.track_paths["imu_between"] >= 15

@@ -105,7 +105,9 @@ class FrontendConfig:
     image_min_std: float = 3.0  # below: blank image
     image_saturated_mean: float = 250.0  # above: saturated image
     image_dark_mean: float = 3.0  # below: black image
-    reinit_after_lost_frames: int = 2  # consecutive LOST frames before re-creating the map
+    # consecutive LOST tracked frames before re-creating the map (a frame left out by
+    # `track_every` is no tracking attempt: not counted)
+    reinit_after_lost_frames: int = 2
 
     # ---- execution -------------------------------------------------------------------------
     # extraction of the next frames (rectify, ORB, stereo matching) in worker processes while

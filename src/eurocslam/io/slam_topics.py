@@ -18,8 +18,8 @@ the frame's time):
 | /groundtruth/drone | visualization_msgs/MarkerArray | the Firefly on `gt_body` (green) |
 | /slam/places | visualization_msgs/MarkerArray | loops, relocalizations, merges (`PLACE_RGBA`) |
 
-A frame left out by `frontend.track_every` while tracking has no /slam/features and no
-/slam/stats (nothing was counted; plots join the tracked frames).
+A frame left out by `frontend.track_every` has no /slam/features and no /slam/stats (nothing
+was counted; plots join the tracked frames).
 
 Per keyframe: /slam/path (nav_msgs/Path of the segment's smoothed keyframes) and
 /slam/landmarks (sensor_msgs/PointCloud2 of the smoother's active map, in `world`).
@@ -44,7 +44,7 @@ from eurocslam.geometry import F64, inv_T, make_T, quat_wxyz_to_rot, rot_z
 from eurocslam.io import drone, ros2
 from eurocslam.io.sensor_streams import FRAME_GT_BODY, FRAME_GT_WORLD, SensorStreams
 from eurocslam.io.sink import Sink
-from eurocslam.pipeline.records import STATE_CODE, FrameOutput, PipelineState, RunResult
+from eurocslam.pipeline.records import STATE_CODE, FrameOutput, RunResult
 
 WORLD = "world"
 BODY = "body"
@@ -192,9 +192,7 @@ class SlamMcapWriter:
             every = max(1, self.cfg.landmarks_every_n_keyframes)
             if self._n_kf % every == 0 and lm is not None and len(lm):
                 self._w("/slam/landmarks", ros2.POINT_CLOUD2, t, ros2.point_cloud2(t, WORLD, lm))
-        # a frame left out by frontend.track_every while tracking has no counts: the plots
-        # join the tracked frames
-        if fr is not None or out.state != PipelineState.TRACKING:
+        if not out.left_out:  # nothing was counted: the plots join the tracked frames
             stats = [
                 STATE_CODE[out.state],
                 fr.n_features if fr else 0,

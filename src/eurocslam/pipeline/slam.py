@@ -277,12 +277,12 @@ class SlamPipeline(Startup):
             T_vo = extrapolate_last(self._window, t)
             if T_vo is not None:
                 self.segment.records.append(FrameRecord(t, T_vo, -1))
-            return self._emit(t, PipelineState.INIT, T_vo, None)
+            return self._emit(t, PipelineState.INIT, T_vo, None, left_out=True)
         T = self.est.predict(t).T_world_body
         T = T if self._tracked_offset is None else self._tracked_offset @ T
         self.segment.records.append(FrameRecord(t, T, self._kf_index))
         self.summary.track_paths[IMU_BETWEEN] = self.summary.track_paths.get(IMU_BETWEEN, 0) + 1
-        return self._emit(t, PipelineState.TRACKING, T, None, self._nav)
+        return self._emit(t, PipelineState.TRACKING, T, None, self._nav, left_out=True)
 
     # ---- TRACKING / LOST ------------------------------------------------------------------------
     def _step_tracking(self, ff: FrameFeatures) -> FrameOutput:
@@ -533,6 +533,7 @@ class SlamPipeline(Startup):
         *,
         segment: int | None = None,
         reset_reason: str = "",
+        left_out: bool = False,
     ) -> FrameOutput:
         """One frame's output, in the world frame its segment is in (`T`, the path and the
         landmarks are in the segment's own world; a merged segment's are moved)."""
@@ -566,6 +567,7 @@ class SlamPipeline(Startup):
             landmarks=landmarks,
             frame=self.frames.frame_of[seg],
             places=events,
+            left_out=left_out,
         )
 
     def result(self) -> RunResult:
