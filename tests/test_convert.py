@@ -16,9 +16,10 @@ from rosbags.typesys import Stores, get_typestore
 from eurocslam.cli import main
 from eurocslam.convert import ConvertOptions, convert
 from eurocslam.dataset import open_sequence
+from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import OutputError
 from eurocslam.io import ros2
-from eurocslam.io.sensor_streams import SensorStreams
+from eurocslam.io.sensor_streams import SensorStreams, StreamOptions
 
 TS = get_typestore(Stores.ROS2_HUMBLE)
 
@@ -216,6 +217,23 @@ def test_mh01_png_passthrough_leica_lz4(mh01_first5: Path, tmp_path: Path) -> No
     assert res.skips.total == 0
     with out.open("rb") as f:
         assert all(c.compression == "lz4" for c in make_reader(f).get_summary().chunk_indexes)
+
+
+def test_decoded_frames_pass_their_png_files_through(mh01_first5: Path) -> None:
+    """`run --images png` hands run.mcap frames it has decoded already: an 8-bit grey PNG file
+    goes in byte for byte (not encoded again); a frame without files is encoded."""
+    src = open_sequence(mh01_first5)
+    streams = SensorStreams(src, StreamOptions(images="png"))
+    frame = next(iter(src.frames()))
+    assert frame.left is not None and frame.left_path is not None and frame.right_path is not None
+    enc = streams.encode_frame(frame)
+    assert enc.cam0 is not None and enc.cam1 is not None
+    assert frame.left_path.read_bytes() in enc.cam0 and frame.right_path.read_bytes() in enc.cam1
+    bare = streams.encode_frame(StereoFrame(frame.t_ns, frame.left, frame.right))
+    assert bare.cam0 is not None and frame.left_path.read_bytes() not in bare.cam0
+    png = bare.cam0[bare.cam0.index(b"\x89PNG") :]
+    decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(decoded, frame.left)
 
 
 def test_jpeg_crop_and_topic_selection(v101_micro: Path, tmp_path: Path) -> None:
