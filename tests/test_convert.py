@@ -219,9 +219,10 @@ def test_mh01_png_passthrough_leica_lz4(mh01_first5: Path, tmp_path: Path) -> No
         assert all(c.compression == "lz4" for c in make_reader(f).get_summary().chunk_indexes)
 
 
-def test_decoded_frames_pass_their_png_files_through(mh01_first5: Path) -> None:
+def test_decoded_frames_pass_their_png_files_through(mh01_first5: Path, tmp_path: Path) -> None:
     """`run --images png` hands run.mcap frames it has decoded already: an 8-bit grey PNG file
-    goes in byte for byte (not encoded again); a frame without files is encoded."""
+    goes in byte for byte (not encoded again); a frame without files, or whose file is not 8-bit
+    grey (the reader converted it), is encoded from the pixels SLAM used."""
     src = open_sequence(mh01_first5)
     streams = SensorStreams(src, StreamOptions(images="png"))
     frame = next(iter(src.frames()))
@@ -231,9 +232,14 @@ def test_decoded_frames_pass_their_png_files_through(mh01_first5: Path) -> None:
     assert frame.left_path.read_bytes() in enc.cam0 and frame.right_path.read_bytes() in enc.cam1
     bare = streams.encode_frame(StereoFrame(frame.t_ns, frame.left, frame.right))
     assert bare.cam0 is not None and frame.left_path.read_bytes() not in bare.cam0
-    png = bare.cam0[bare.cam0.index(b"\x89PNG") :]
-    decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
-    assert np.array_equal(decoded, frame.left)
+    png16 = tmp_path / "left16.png"
+    cv2.imwrite(str(png16), frame.left.astype(np.uint16) << 8)
+    wide = streams.encode_frame(StereoFrame(frame.t_ns, frame.left, frame.right, png16))
+    for enc_cam0 in (bare.cam0, wide.cam0):
+        assert enc_cam0 is not None and png16.read_bytes() not in enc_cam0
+        png = enc_cam0[enc_cam0.index(b"\x89PNG") :]
+        decoded = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+        assert np.array_equal(decoded, frame.left)
 
 
 def test_jpeg_crop_and_topic_selection(v101_micro: Path, tmp_path: Path) -> None:

@@ -159,6 +159,10 @@ def test_tracking_one_frame_in_n(synth_seq: Path, every: int) -> None:
         {k for k in range(40) if k % every} <= left_out <= {k for k in range(s.frames) if k % every}
     )
     assert all(outs[k].frontend is None and outs[k].T_world_body is not None for k in left_out)
+    assert not any(o.left_out for o in outs if o.state == PipelineState.LOST)
+    in_init = sum(1 for k in left_out if outs[k].state == PipelineState.INIT)
+    assert s.track_paths["vo_between"] == in_init > 0
+    assert s.track_paths["imu_between"] == len(left_out) - in_init
     # lost from the first black frame tracked (the ones before it are left out while tracking)
     assert s.state_frames["INIT"] >= 20 and s.state_frames["LOST"] >= len(black) - every + 1
     assert s.track_paths["imu_between"] >= 15

@@ -128,7 +128,8 @@ def test_tracking_every_second_frame_writes_every_image(v101_micro: Path, tmp_pa
     args = ["run", str(v101_micro), "-o", str(out), "--end", "1.0", "--no-progress"]
     assert main([*args, "--config", str(cfg)]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    n, between = summary["frames"], summary["track_paths"]["imu_between"]
+    paths = summary["track_paths"]
+    n, between = summary["frames"], paths["imu_between"] + paths.get("vo_between", 0)
     assert summary["frames_with_pose"] == n >= 19 and n // 2 - 1 <= between <= n // 2
     assert "imu_between" in (out / "summary.txt").read_text()
     counts: dict[str, int] = {}
@@ -137,6 +138,23 @@ def test_tracking_every_second_frame_writes_every_image(v101_micro: Path, tmp_pa
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
     assert counts["/cam0/image_raw"] == counts["/cam1/image_raw"] == counts["/slam/pose"] == n
     assert counts["/slam/stats"] == n - between
+
+
+def test_png_images_go_into_run_mcap_as_their_files(v101_micro: Path, tmp_path: Path) -> None:
+    """`run --images png`: the frames SLAM decoded go into run.mcap as EuRoC's PNG files, byte
+    for byte (not encoded again)."""
+    from mcap.reader import make_reader
+
+    out = tmp_path / "o"
+    args = ["run", str(v101_micro), "-o", str(out), "--end", "0.5", "--no-progress"]
+    assert main([*args, "--images", "png"]) == 0
+    files = {e.t_ns: e.left for e in open_sequence(v101_micro).entries}
+    n = 0
+    with open(out / "run.mcap", "rb") as f:
+        for _, _, m in make_reader(f).iter_messages(topics=["/cam0/image_raw/compressed"]):
+            assert files[m.log_time].read_bytes() in m.data
+            n += 1
+    assert n >= 10
 
 
 def test_bad_config_is_a_clean_error(

@@ -53,3 +53,36 @@ def test_groundtruth_overlay_matches_position_and_yaw_only() -> None:
     # whole first pose places the ground truth
     T3 = groundtruth_alignment(T_tilted, T_gt, yaw_only=False)
     np.testing.assert_allclose(T3 @ T_gt, T_tilted, atol=1e-12)
+
+
+def test_left_out_frames_write_no_stats(mh01_first5: Path) -> None:
+    """/slam/stats for every frame but those left out by `frontend.track_every`: a frame with no
+    frontend result that was not left out (before the init, lost) still gets its (zero) counts."""
+    from eurocslam.dataset import open_sequence
+    from eurocslam.io.sensor_streams import SensorStreams
+    from eurocslam.io.slam_topics import SlamMcapWriter
+    from eurocslam.pipeline.records import FrameOutput, PipelineState
+
+    seq = open_sequence(mh01_first5)
+    topics: list[str] = []
+
+    class ListSink:
+        def write(self, topic: str, msgtype: str, log_time_ns: int, msg: bytes) -> None:
+            topics.append(topic)
+
+        def close(self) -> None:
+            pass
+
+    w = SlamMcapWriter(ListSink(), SensorStreams(seq), seq.groundtruth)
+    init, tracking, lost = PipelineState.INIT, PipelineState.TRACKING, PipelineState.LOST
+    frames = list(seq.frames())[:4]
+    T = np.eye(4)
+    outs = [
+        FrameOutput(frames[0].t_ns, init, None, 0, False, None, None),
+        FrameOutput(frames[1].t_ns, init, T, 0, False, None, None, left_out=True),
+        FrameOutput(frames[2].t_ns, tracking, T, 0, False, None, None, left_out=True),
+        FrameOutput(frames[3].t_ns, lost, None, 0, False, None, None),
+    ]
+    for frame, out in zip(frames, outs, strict=True):
+        w.on_frame(frame, out)
+    assert topics.count("/slam/state") == 4 and topics.count("/slam/stats") == 2

@@ -5,7 +5,8 @@
 Writes into `out_dir`:
 
 * `run.mcap`: everything `eurocslam convert` writes (same single pass, the images the pipeline
-  already decoded) plus the SLAM topics of `io/slam_topics.py`;
+  already decoded; with `--images png` their 8-bit grey PNG files as they are) plus the SLAM
+  topics of `io/slam_topics.py`;
 * `trajectory_online.tum` / `trajectory_online.csv`: the causal per-frame estimate;
 * `trajectory_final.tum` / `trajectory_final.csv`: after the final batch optimisation;
 * `map.ply`: the batch-optimised landmarks (with their segment);
@@ -138,17 +139,20 @@ def run_slam(
             pipeline.observers.append(mcap.writer)
         pb = bar(total=n_frames, desc=f"run {source.name}", unit="frame", enabled=opt.progress)
 
+        tracked = 0  # of the last frame tracked (a frame left out by track_every has no count)
+
         def progress(out: FrameOutput) -> None:
-            nonlocal started
+            nonlocal started, tracked
             started = True
             pb.update(1)
+            if not out.left_out:
+                tracked = out.frontend.n_tracked if out.frontend else 0
             if pb.n == n_frames:  # the final batch follows: seconds on a long sequence
                 pb.set_postfix_str("final batch: optimising the whole trajectory and map ...")
             elif pb.n % 10 == 0 or out.reset_reason:
-                fr = out.frontend
                 pb.set_postfix(
                     state=out.state.value,
-                    tracked=fr.n_tracked if fr else 0,
+                    tracked=tracked,
                     kf=out.n_keyframes,
                     resets=out.n_resets,
                     refresh=False,

@@ -1,7 +1,7 @@
 """The converted EuRoC sensor streams as ROS 2 messages, written in log-time order in one pass.
 
 Used by `eurocslam convert` and by `eurocslam run` (which interleaves its own SLAM messages and
-reuses the images it has already decoded). How to use it:
+reuses the images it has already decoded, or in png mode their 8-bit grey PNG files). How to use it:
 
     streams = SensorStreams(source, StreamOptions(...))   # any SequenceSource
     streams.write_static(sink)              # /tf_static at streams.t0_ns (first message time)

@@ -57,7 +57,7 @@ class FrameOutput:
     landmarks: F64 | None = None
     frame: int = 0  # the world frame of the poses (a segment index: its own, or where it merged)
     places: tuple[PlaceEvent, ...] = ()  # loops, relocalizations, merges found at this frame
-    left_out: bool = False  # not extracted nor tracked (`frontend.track_every`): a pose, no counts
+    left_out: bool = False  # not extracted nor tracked (`frontend.track_every`): no counts
 
 
 class FrameObserver(Protocol):

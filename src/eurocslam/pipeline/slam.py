@@ -59,7 +59,7 @@ from eurocslam.pipeline.records import (
 from eurocslam.pipeline.segments import FrameRecord, Segment, assemble, extrapolate_last
 from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
-from eurocslam.pipeline.summary import IMU_BETWEEN, RunSummary, cpu_seconds
+from eurocslam.pipeline.summary import IMU_BETWEEN, VO_BETWEEN, RunSummary, cpu_seconds
 
 
 class SlamPipeline(Startup):
@@ -259,8 +259,7 @@ class SlamPipeline(Startup):
         if out.frontend is not None:
             s.landmarks_reused += out.frontend.n_reused
             if out.frontend.track_path:
-                p = out.frontend.track_path
-                s.track_paths[p] = s.track_paths.get(p, 0) + 1
+                s.count_path(out.frontend.track_path)
             if "track_total" in out.frontend.timings_ms:
                 s.add_time("tracking", out.frontend.timings_ms["track_total"])
         s.state_frames[out.state.value] = s.state_frames.get(out.state.value, 0) + 1
@@ -277,11 +276,12 @@ class SlamPipeline(Startup):
             T_vo = extrapolate_last(self._window, t)
             if T_vo is not None:
                 self.segment.records.append(FrameRecord(t, T_vo, -1))
+            self.summary.count_path(VO_BETWEEN)
             return self._emit(t, PipelineState.INIT, T_vo, None, left_out=True)
         T = self.est.predict(t).T_world_body
         T = T if self._tracked_offset is None else self._tracked_offset @ T
         self.segment.records.append(FrameRecord(t, T, self._kf_index))
-        self.summary.track_paths[IMU_BETWEEN] = self.summary.track_paths.get(IMU_BETWEEN, 0) + 1
+        self.summary.count_path(IMU_BETWEEN)
         return self._emit(t, PipelineState.TRACKING, T, None, self._nav, left_out=True)
 
     # ---- TRACKING / LOST ------------------------------------------------------------------------

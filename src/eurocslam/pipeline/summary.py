@@ -31,7 +31,8 @@ def _finite(x: float) -> float | None:
 
 
 IMU_BETWEEN = "imu_between"  # not tracked (frontend.track_every): the IMU's pose
-TRACK_PATHS = ("projection", "projection_wide", "descriptor", "lost", IMU_BETWEEN)
+VO_BETWEEN = "vo_between"  # the same in a dynamic start's VO window: extrapolated VO
+TRACK_PATHS = ("projection", "projection_wide", "descriptor", "lost", IMU_BETWEEN, VO_BETWEEN)
 
 
 @dataclass
@@ -53,7 +54,7 @@ class RunSummary:
     # `run --map`: path, keyframes, landmarks, load_s, localized_after_s (None: not localized)
     prior_map: dict[str, object] = field(default_factory=dict)
     # how each frame's pose was found: projection | projection_wide | descriptor | lost (the
-    # tracker's), imu_between (a frame left out by frontend.track_every)
+    # tracker's), imu_between / vo_between (a frame left out by frontend.track_every)
     track_paths: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
     wall_s: float = 0.0
@@ -70,6 +71,10 @@ class RunSummary:
 
     def add_time(self, stage: str, ms: float) -> None:
         self.timings_ms.setdefault(stage, []).append(ms)
+
+    def count_path(self, path: str) -> None:
+        """One more frame whose pose was found by `path` (`track_paths`)."""
+        self.track_paths[path] = self.track_paths.get(path, 0) + 1
 
     def add_extraction_cost(self, cost: ExtractionCost) -> None:
         """The extraction workers' memory and CPU time, and the frame reader's (none inline)."""
