@@ -64,19 +64,16 @@ def main() -> int:
         raise SystemExit(f"no {EXE} (set up the virtual environment: see README)")
     duration = args.duration or None
     args.cache.mkdir(parents=True, exist_ok=True)
-    replicas = {
-        (s, seed): make_replica(s, args.cache, duration, seed)
-        for s in args.sequences
-        for seed in args.seeds
-    }
     # results[variant][sequence] = one dict per seed, in --seeds order
     results: dict[str, dict[str, list[dict[str, float]]]] = {v.name: {} for v in variants}
     with (
         tempfile.TemporaryDirectory(prefix="bench_seeds_") as tmp,
         checked_out(variants, Path(tmp)),
     ):
-        n, total = 0, len(replicas) * len(variants)
-        for (s, seed), seq in replicas.items():
+        n, total = 0, len(args.sequences) * len(args.seeds) * len(variants)
+        for s, seed in ((s, seed) for s in args.sequences for seed in args.seeds):
+            # rendered when its turn comes (1.6-2.6 GB each), not all of them first
+            seq = make_replica(s, args.cache, duration, seed)
             for v in variants:
                 r = run_once(v, seq, Path(tmp) / f"out_{v.name}", duration, mcap=False)
                 results[v.name].setdefault(s, []).append(r)
