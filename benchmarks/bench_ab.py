@@ -101,6 +101,10 @@ def run_once(
         "final_batch": s["timings"].get("final_batch", {}).get("total_s", 0.0),
         "ate_mm": 1e3 * float(r["ate_final"]),  # type: ignore[arg-type]
         "online_mm": 1e3 * float(r["ate_online"]),  # type: ignore[arg-type]
+        # loops that moved the online estimate (0 for code without place recognition)
+        "loops_corrected": sum(
+            1 for e in s.get("places", {}).get("loops", []) if e["correction_m"] > 0
+        ),
     }
 
 
