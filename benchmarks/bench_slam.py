@@ -23,6 +23,7 @@ The machine is shared and noisy: real-time factors are indicative; compare withi
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
 import multiprocessing
 import os
@@ -73,12 +74,26 @@ def gt_file(full: str) -> Path:
     return csv if csv.exists() else GT_DIR / f"{full}.txt"
 
 
-def make_replica(short: str, cache: Path, duration: float | None, seed: int) -> Path:
+def make_replica(
+    short: str, cache: Path, duration: float | None, seed: int, blur: bool = False
+) -> Path:
+    """The replica of `short` in world `seed` (rendered into `cache` once); `blur`: with motion
+    blur (8 ms exposures, 5x the rendering time)."""
+    tag = f"{short}_{'full' if duration is None else f'{duration:g}s'}_s{seed}"
+    tag += "_blur" if blur else ""
+    out = cache / tag
+    # one render per replica: another benchmark asking for it at the same time waits for it
+    cache.mkdir(parents=True, exist_ok=True)
+    with open(cache / f"{tag}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        return _render_once(short, out, duration, seed, blur)
+
+
+def _render_once(short: str, out: Path, duration: float | None, seed: int, blur: bool) -> Path:
     from eurocslam.synth import SynthSpec, synthesize
     from eurocslam.synth.sequence import GENERATOR_REVISION
 
-    tag = f"{short}_{'full' if duration is None else f'{duration:g}s'}_s{seed}"
-    out = cache / tag
+    tag = out.name
     if (out / "mav0").is_dir():
         # a replica rendered by an older generator is stale: render it again
         try:
@@ -98,6 +113,7 @@ def make_replica(short: str, cache: Path, duration: float | None, seed: int) -> 
         imu=V101_IMU if short == "V1_01" and V101_IMU.exists() else None,
         duration_s=duration,
         seed=seed,
+        motion_blur=blur,
     )
     t = time.perf_counter()
     # in a child process: rendering makes this process large, and a child started later
