@@ -1,5 +1,6 @@
 """When a recognised loop moves the online estimate (pipeline/places.py `PlaceStage.loop`): the
-verified matches are given (a stub recognizer), so that only the stage's rules are tested."""
+verified matches are given (a stand-in recognizer), so that only the stage's rules are tested:
+consistency over keyframes, and the gate of the drift against the estimator's uncertainty."""
 
 from __future__ import annotations
 
@@ -7,15 +8,22 @@ from collections.abc import Callable
 
 import numpy as np
 import pytest
+from gtsam import Pose3
 
 from eurocslam.config import PlacesConfig
-from eurocslam.geometry import F64, make_T, so3_exp
-from eurocslam.pipeline.places import FrameBook, PlaceEvent, PlaceStage
+from eurocslam.geometry import F64, make_T, se3_log, so3_exp, so3_log
+from eurocslam.pipeline.places import (
+    FrameBook,
+    PlaceEvent,
+    PlaceStage,
+    loop_gate,
+    yaw_and_translation,
+)
 from eurocslam.places.recognizer import PlaceMatch, PlaceView
 from eurocslam.places.vocabulary import BowVector
 
 
-class StubRecognizer:
+class GivenMatches:
     """Answers every query with `match` (when the stage accepts its key)."""
 
     def __init__(self) -> None:
@@ -45,48 +53,114 @@ def _view(key: int, t_s: float) -> PlaceView:
     )
 
 
+def _cov(rot_deg: tuple[float, float, float], pos_m: float) -> F64:
+    return np.diag([*np.radians(rot_deg) ** 2, *[pos_m**2] * 3])
+
+
+# a visual-only estimate 20 s after the recognised keyframe: 2 deg and 20 cm of drift allowed
+LOOSE = _cov((2.0, 2.0, 2.0), 0.2)
+# a match of many inliers: 0.1 deg, 1 cm
+TIGHT_MATCH = _cov((0.1, 0.1, 0.1), 0.01)
+DRIFT = make_T(so3_exp(np.radians([0.0, 0.0, 1.5])), np.array([0.12, 0.0, 0.0]))
+
+
 def _corrections(
-    inliers: list[int], cfg: PlacesConfig
+    cfg: PlacesConfig,
+    cov_query: F64 | None = LOOSE,
+    drift: F64 = DRIFT,
+    inliers: int = 200,
+    cov_match: F64 = TIGHT_MATCH,
 ) -> tuple[list[F64 | None], list[PlaceEvent]]:
-    """Keyframes 20 s after a filed one each recognise it with `inliers`; the match puts them
-    1.5 deg and 12 cm away from where the estimate has them. The D acted on, per keyframe, and
-    the events reported."""
-    stub = StubRecognizer()
+    """Two keyframes 20 s after a filed one (covariance zero) each recognise it; the match puts
+    them `drift` away from where the estimate has them, the estimator's covariance of their
+    pose is `cov_query` (None: no gate). The D acted on, per keyframe, and the events."""
+    given = GivenMatches()
     book = FrameBook()
     book.new_segment()
-    stage = PlaceStage(stub, cfg, book, lambda seg, ids: np.full((ids.size, 3), np.nan))  # type: ignore[arg-type]
-    stage.file(_view(0, 0.0), 0, 0, np.eye(4))
-    drift = make_T(so3_exp(np.radians([0.0, 0.0, 1.5])), np.array([0.12, 0.0, 0.0]))
+    stage = PlaceStage(given, cfg, book, lambda seg, ids: np.full((ids.size, 3), np.nan))  # type: ignore[arg-type]
+    stage.file(_view(0, 0.0), 0, 0, np.eye(4), np.zeros((6, 6)))
     out = []
-    for i, n in enumerate(inliers):
+    for i in range(2):
         T_est = make_T(np.eye(3), np.array([0.5 * i, 0.0, 0.0]))
-        stub.match = PlaceMatch(0, 0.5, drift @ T_est, n)
-        fix = stage.loop(_view(i + 1, 20.0 + i), 0, T_est)
+        given.match = PlaceMatch(0, 0.5, drift @ T_est, inliers, cov_match)
+        asked = None if cov_query is None else (lambda: cov_query)
+        fix = stage.loop(_view(i + 1, 20.0 + i), 0, T_est, asked)
         out.append(None if fix is None else fix.D)
     return out, stage.events
 
 
-def test_two_agreeing_loops_with_enough_inliers_correct_the_drift() -> None:
-    cfg = PlacesConfig()
-    fixes, events = _corrections([cfg.loop_correct_min_inliers, 200], cfg)
+def test_two_agreeing_loops_within_the_estimates_uncertainty_correct_the_drift() -> None:
+    fixes, events = _corrections(PlacesConfig())
     assert fixes[0] is None  # one keyframe is not enough
     assert fixes[1] is not None
-    np.testing.assert_allclose(np.degrees(np.arccos((np.trace(fixes[1][:3, :3]) - 1) / 2)), 1.5)
-    assert [(e.kind, round(e.correction_deg, 6)) for e in events] == [("loop", 1.5)]
+    np.testing.assert_allclose(np.degrees(np.linalg.norm(so3_log(fixes[1][:3, :3]))), 1.5)
+    (e,) = events
+    assert (e.kind, round(e.correction_deg, 6), e.refused) == ("loop", 1.5, False)
+    assert 0 < e.gate_chi2 < PlacesConfig().loop_gate_chi2
 
 
-@pytest.mark.parametrize("weak", [0, 1])
-def test_a_coarse_match_among_the_votes_corrects_nothing(weak: int) -> None:
-    """Consecutive keyframes matched with few inliers can agree on the same wrong drift: the
-    loop is reported, the estimate is not moved."""
-    cfg = PlacesConfig()
-    inliers = [200, 200]
-    inliers[weak] = cfg.loop_correct_min_inliers - 1
-    fixes, events = _corrections(inliers, cfg)
+def test_a_loop_with_many_inliers_that_the_estimate_cannot_have_drifted_is_refused() -> None:
+    """200 inliers agree on 1.5 deg and 12 cm, twice; the estimator is sure of its pose to 0.2
+    deg and 1 cm since that keyframe: the loop is reported as refused, nothing moves."""
+    fixes, events = _corrections(PlacesConfig(), cov_query=_cov((0.2, 0.2, 0.2), 0.01))
     assert fixes == [None, None]
-    assert [(e.kind, e.correction_m, e.n_inliers) for e in events] == [("loop", 0.0, inliers[1])]
+    (e,) = events
+    assert e.refused and e.correction_m == 0.0 and e.n_inliers == 200
+    assert e.gate_chi2 > 5 * PlacesConfig().loop_gate_chi2
+    assert e.drift_m == pytest.approx(0.12, abs=1e-9)
+    assert e.drift_deg == pytest.approx(1.5, abs=1e-9)
+    assert e.to_dict()["refused"] is True
+
+
+def test_the_gate_counts_the_matchs_own_uncertainty() -> None:
+    """The same drift from a match that measures it only to 2 deg and 20 cm (few, far points):
+    the estimator's tight covariance alone does not refuse what the match cannot tell."""
+    tight = _cov((0.2, 0.2, 0.2), 0.01)
+    fixes, _ = _corrections(PlacesConfig(), cov_query=tight, cov_match=LOOSE)
+    assert fixes[1] is not None
+
+
+def test_roll_and_pitch_that_gravity_fixes_are_not_corrected() -> None:
+    """A stereo-inertial estimate: yaw and position uncertain (2 deg, 20 cm), roll and pitch
+    to 0.05 deg. A loop drift of 1.5 deg in yaw passes; the same 1.5 deg in roll does not."""
+    imu_like = _cov((0.05, 0.05, 2.0), 0.2)
+    yaw_fix, _ = _corrections(PlacesConfig(), cov_query=imu_like)
+    roll = make_T(so3_exp(np.radians([1.5, 0.0, 0.0])), np.array([0.12, 0.0, 0.0]))
+    roll_fix, events = _corrections(PlacesConfig(), cov_query=imu_like, drift=roll)
+    assert yaw_fix[1] is not None and roll_fix == [None, None]
+    assert events[0].refused
+
+
+def test_the_gate_is_the_drifts_mahalanobis_distance() -> None:
+    rng = np.random.default_rng(3)
+    xi = np.concatenate([np.radians(rng.normal(size=3)), 0.1 * rng.normal(size=3)])
+    D = Pose3.Expmap(xi).matrix()  # a drift whose twist is exactly xi
+    np.testing.assert_allclose(se3_log(D), xi, atol=1e-12)
+    S = LOOSE + TIGHT_MATCH
+    assert loop_gate(D, LOOSE, np.zeros((6, 6)), TIGHT_MATCH) == pytest.approx(
+        float(xi @ np.linalg.solve(S, xi)), rel=1e-9
+    )
+    # what the recognised keyframe was already unsure of is no drift between the two
+    assert loop_gate(D, LOOSE, LOOSE, TIGHT_MATCH) == pytest.approx(
+        float(xi @ np.linalg.solve(TIGHT_MATCH, xi)), rel=1e-9
+    )
+
+
+def test_yaw_and_translation_keep_the_querys_corrected_position() -> None:
+    D = make_T(so3_exp(np.radians([0.8, -0.5, 3.0])), np.array([0.1, -0.2, 0.05]))
+    p = np.array([2.0, 1.0, 1.5])
+    D4 = yaw_and_translation(D, p)
+    np.testing.assert_allclose(D4[:3, :3] @ p + D4[:3, 3], D[:3, :3] @ p + D[:3, 3])
+    np.testing.assert_allclose(D4[:3, :3] @ [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], atol=1e-12)
+    yaw = np.degrees(np.arctan2(D4[1, 0], D4[0, 0]))
+    assert yaw == pytest.approx(np.degrees(np.arctan2(D[1, 0], D[0, 0])))
+
+
+def test_without_an_estimators_covariance_there_is_no_gate() -> None:
+    fixes, events = _corrections(PlacesConfig(), cov_query=None)
+    assert fixes[1] is not None and not events[0].refused
 
 
 def test_without_online_correction_loops_are_only_reported() -> None:
-    fixes, events = _corrections([200, 200], PlacesConfig(correct_loops_online=False))
+    fixes, events = _corrections(PlacesConfig(correct_loops_online=False))
     assert fixes == [None, None] and [e.correction_m for e in events] == [0.0]
