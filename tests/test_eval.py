@@ -12,8 +12,14 @@ from eurocslam.eval.align import align, posyaw, umeyama
 from eurocslam.eval.associate import associate
 from eurocslam.eval.evaluate import EvalConfig, coverage, evaluate
 from eurocslam.eval.metrics import cumulative_distance, distance_pairs
-from eurocslam.eval.synthetic import T0_NS, perturb, random_similarity, smooth_trajectory
-from eurocslam.geometry import rot_z, so3_exp
+from eurocslam.eval.synthetic import (
+    T0_NS,
+    perturb,
+    random_similarity,
+    smooth_trajectory,
+    straight_road,
+)
+from eurocslam.geometry import rot_z, so3_exp, so3_log
 from eurocslam.trajectory import Trajectory
 
 
@@ -136,11 +142,17 @@ def test_alignment_needs_three_pairs_and_motion() -> None:
         align("se3", p, p)
     with pytest.raises(EvalError, match="at least 3"):
         align("posyaw", np.zeros((10, 3)), np.zeros((10, 3)), first_n=2)
-    with pytest.raises(EvalError, match="degenerate"):
+    with pytest.raises(EvalError, match=r"degenerate.*do not move"):
         umeyama(np.zeros((10, 3)), np.zeros((10, 3)), False)
+    moving = np.random.default_rng(1).normal(size=(10, 3))
+    with pytest.raises(EvalError, match="do not move"):  # the estimate stands still
+        align("se3", moving, np.tile([1.0, 2.0, 3.0], (10, 1)))
+    # a line is no error (evo aligns one where its absolute rank test lets it): the line is
+    # mapped onto itself whatever the turn about it
     line = np.outer(np.arange(10.0), [1.0, 2.0, 3.0])
-    with pytest.raises(EvalError, match="collinear"):
-        align("se3", line, line)
+    a = align("se3", line, line)
+    assert np.abs(a.apply_positions(line) - line).max() < 1e-12
+    assert a.basis == "positions" and a.extent_sigmas is not None and a.extent_sigmas > 1e6
 
 
 # ---------------------------------------------------------------------------- against evo
@@ -336,3 +348,125 @@ def test_a_platform_at_rest_is_aligned_by_its_orientations_and_shows_no_drift() 
     assert r.ate_rot.max < 1e-6
     assert r.ate_trans.rmse < 0.003
     assert r.drift_pct is None and r.lengths == []
+
+
+# ------------------------------------------- straight roads and platforms at rest, against evo
+
+
+def _evo_ate(ref: Trajectory, est: Trajectory, mode: str):
+    """evo's APE translation after its Umeyama fit of positions (`-a`, `-as`): per-pose errors,
+    statistics, and APE rotation statistics."""
+    from evo.core import metrics, sync
+
+    ref_e, est_e = sync.associate_trajectories(_to_evo(ref), _to_evo(est), max_diff=0.01)
+    est_e = copy.deepcopy(est_e)
+    est_e.align(ref_e, correct_scale=(mode == "sim3"))
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref_e, est_e))
+    ape_r = metrics.APE(metrics.PoseRelation.rotation_angle_deg)
+    ape_r.process_data((ref_e, est_e))
+    return ape.error, ape.get_all_statistics(), ape_r.get_all_statistics()
+
+
+@pytest.mark.parametrize("mode", ["se3", "sim3"])
+def test_a_straight_road_equals_evo(mode: str) -> None:
+    """Issue #35: a straight 60 m road with millimetres of lateral wiggle. The positions fix the
+    road's direction and a turn about the road moves the aligned positions only within the
+    wiggle, so evo's fit of positions is the ATE; eval had taken the rotation from the
+    orientations there (the old rule: the positions 'pin it down' only to tens of degrees about
+    the road) and read 0.128 m where evo reads 0.033."""
+    from eurocslam.eval.align import DETERMINED_EXTENT_SIGMAS, rotation_fit_sigma_deg
+
+    gt = straight_road(60.0, 0.003)
+    est = perturb(
+        gt,
+        random_similarity(3, 0.9 if mode == "sim3" else 1.0),
+        noise_m=0.03,
+        noise_rad=0.01,
+        drift_m=0.002,
+        seed=2,
+    )
+    r = evaluate(gt, est, EvalConfig(align=mode))
+    al = r.segments[0].alignment
+    err, stats, stats_r = _evo_ate(gt, est, mode)
+    assert al.basis == "positions" and not al.note and r.ate_trans_position_fit is None
+    assert al.extent_sigmas is not None and al.extent_sigmas > 100 * DETERMINED_EXTENT_SIGMAS
+    assert rotation_fit_sigma_deg(gt.p, r.ate_trans.rmse) > 10.0  # what the old rule read
+    assert np.abs(r.segments[0].ate_t - err).max() < 1e-9
+    for k in ("rmse", "mean", "median", "std", "min", "max"):
+        assert getattr(r.ate_trans, k) == pytest.approx(stats[k], abs=1e-5), k
+        assert getattr(r.ate_rot, k) == pytest.approx(stats_r[k], abs=1e-6), k
+
+
+def test_an_exactly_straight_road_matches_evo_where_evo_gives_a_number() -> None:
+    """Exactly collinear reference positions: Umeyama's cross-covariance has rank 1. evo aligns
+    when rounding leaves its second singular value above its absolute epsilon (a 60 m road) and
+    raises on a 1 m one; either way every position error is the same for any turn about the
+    line. eval aligns both, taking the turn about the line from the orientations."""
+    from evo.core.geometry import GeometryException
+
+    M = random_similarity(4)
+    for length_m in (60.0, 1.0):
+        gt = straight_road(length_m, 0.0, direction=(0.6, -0.3, 0.2))
+        est = perturb(gt, M, noise_m=0.002 * length_m, noise_rad=0.01, seed=3)
+        r = evaluate(gt, est, EvalConfig(align="se3"))
+        al = r.segments[0].alignment
+        assert al.basis == "positions" and "positions on a line" in al.note
+        if length_m == 60.0:
+            err, _, _ = _evo_ate(gt, est, "se3")
+        else:
+            with pytest.raises(GeometryException, match="Degenerate"):
+                _evo_ate(gt, est, "se3")
+            # the same road 100x longer: every error 100x, and evo gives its number
+            big = [Trajectory(x.t_ns, 100.0 * x.p, x.q_wxyz, name=x.name) for x in (gt, est)]
+            err = _evo_ate(big[0], big[1], "se3")[0] / 100.0
+        assert np.abs(r.segments[0].ate_t - err).max() < 1e-9 * length_m
+        # the turn about the road from the orientations: ATE rotation is their noise (0.01 rad
+        # per axis, ~1 deg), where evo's turn is whatever its SVD returned
+        assert r.ate_rot.rmse < 2.0
+    # without noise the turn is the estimate frame's own, exactly
+    exact = perturb(gt, M)
+    al = evaluate(gt, exact, EvalConfig(align="se3")).segments[0].alignment
+    np.testing.assert_allclose(al.R, M[:3, :3].T, atol=1e-9)
+
+
+@pytest.mark.parametrize("mode", ["se3", "sim3"])
+def test_at_rest_the_report_gives_both_figures(mode: str) -> None:
+    """A platform at rest (reference noise 0.5 mm, estimate 1 mm): the headline takes the
+    rotation from the orientations; the position-only fit is evo's, and the report gives it
+    beside the headline, saying which is which."""
+    from eurocslam.eval.align import DETERMINED_EXTENT_SIGMAS
+    from eurocslam.eval.report import markdown, markdown_summary
+
+    rng = np.random.default_rng(7)
+    n = 100
+    t = T0_NS + np.arange(n, dtype=np.int64) * 50_000_000
+    R_true = rot_z(-1.1) @ so3_exp(np.array([0.01, 0.03, 0.0]))
+    ref = Trajectory(t, rng.normal(0, 0.0005, (n, 3)), np.tile([1.0, 0, 0, 0], (n, 1)), name="gt")
+    est_T = np.tile(np.eye(4), (n, 1, 1))
+    est_T[:, :3, :3] = R_true.T @ np.stack([so3_exp(w) for w in rng.normal(0, 0.001, (n, 3))])
+    est_T[:, :3, 3] = rng.normal(0, 0.001, (n, 3)) + 4.0
+    est = Trajectory.from_poses(t, est_T, name="est")
+    r = evaluate(ref, est, EvalConfig(align=mode))
+    al = r.segments[0].alignment
+    assert al.basis == "orientations" and al.s == 1.0 and al.position_fit is not None
+    assert al.extent_sigmas is not None and al.extent_sigmas < DETERMINED_EXTENT_SIGMAS
+    assert np.degrees(np.linalg.norm(so3_log(al.R.T @ R_true))) < 0.05
+    err, stats, _ = _evo_ate(ref, est, mode)
+    pos = r.ate_trans_position_fit
+    assert pos is not None and r.segments[0].ate_t_position_fit is not None
+    assert np.abs(r.segments[0].ate_t_position_fit - err).max() < 1e-12
+    for k in ("rmse", "mean", "median", "std", "min", "max"):
+        assert getattr(pos, k) == pytest.approx(stats[k], abs=1e-12), k
+    assert r.ate_rot.rmse < 0.2  # the orientations' own noise
+    md = markdown(r)
+    assert "rotation from the orientations" in md
+    assert f"ATE headline {r.ate_trans.rmse:.4f} m RMSE, with the rotation from the" in md
+    scale = f", scale {al.position_fit.s:.4f}" if mode == "sim3" else ""
+    assert f"the position-only fit (evo's definition{scale}) gives {pos.rmse:.4f} m RMSE" in md
+    assert "| ATE translation, position-only fit (evo) [m] |" in md
+    assert "\\* rotation of the alignment from the orientations" in markdown_summary([r])
+    d = r.to_dict()
+    assert d["ate_basis"] == "orientations" and d["ate_trans_position_fit_m"]["rmse"] == pos.rmse
+    seg_al = d["segments"][0]["alignment"]  # type: ignore[index]
+    assert seg_al["basis"] == "orientations" and seg_al["position_fit"]["basis"] == "positions"

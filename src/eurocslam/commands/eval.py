@@ -201,13 +201,14 @@ def _warn(results: list[EvalResult]) -> None:
     for r in results:
         for seg in r.segments if r.config.align in ("se3", "sim3") else ():
             sigma = seg.rotation_fit_sigma_deg()
-            # (a fit that took its rotation from the orientations says so in the report)
+            # (a fit that took a rotation from the orientations says so in the report)
             if sigma > UNCERTAIN_ROTATION_FIT_DEG and not seg.alignment.note:
                 print(
                     f"eurocslam eval: warning: {r.label}, segment {seg.segment}: the matched "
                     f"positions barely leave a straight line, so the {r.config.align} fit's "
                     f"rotation about it is uncertain (~{sigma:.1f} deg); ATE rotation is not "
-                    "meaningful (--align posyaw keeps gravity)",
+                    "meaningful, ATE translation is (a turn about the line moves the positions "
+                    "only within their lateral spread; --align posyaw keeps gravity)",
                     file=sys.stderr,
                 )
         for sid, why in r.skipped:

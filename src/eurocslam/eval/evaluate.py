@@ -10,6 +10,11 @@ RPE over distance uses lengths that are fractions of the ground-truth path lengt
 matched poses (all segments together); for a single segment this is rpg's "10..50 % of the
 trajectory length", from 0.1 m up (shorter ones measure noise, not drift). Explicit lengths in
 metres override the fractions.
+
+An se3/sim3 alignment is evo's fit of positions wherever the positions decide it; where they do
+not (a platform at rest, `align` says when) its rotation comes from the orientations, and the
+result carries the ATE under the position-only fit too (`ate_trans_position_fit`), so a report
+can give both.
 """
 
 from __future__ import annotations
@@ -100,6 +105,9 @@ class SegmentEval:
     rpe_t_time_ns: I64  # end stamp of each delta pair
     gt_length_m: float
     lengths: list[RpeLength] = field(default_factory=list)
+    # per pose [m] under the position-only (evo) fit, where the alignment took its rotation from
+    # the orientations and a position fit exists (`Alignment.position_fit`)
+    ate_t_position_fit: F64 | None = None
 
     def summary(self) -> dict[str, object]:
         return {
@@ -109,6 +117,11 @@ class SegmentEval:
             "gt_length_m": self.gt_length_m,
             "duration_s": float(self.t_ns[-1] - self.t_ns[0]) / NS_PER_S,
             "ate_trans_m": Stats.of(self.ate_t).to_dict(),
+            **(
+                {"ate_trans_position_fit_m": Stats.of(self.ate_t_position_fit).to_dict()}
+                if self.ate_t_position_fit is not None
+                else {}
+            ),
             "ate_rot_deg": Stats.of(self.ate_r).to_dict(),
             "rpe_delta_trans_m": Stats.of(self.rpe_t).to_dict(),
             "rpe_delta_rot_deg": Stats.of(self.rpe_r).to_dict(),
@@ -138,6 +151,15 @@ class EvalResult:
     coverage: float
     ref_span_s: float
     ref_length_m: float  # whole reference path length
+    # where a segment's alignment took its rotation from the orientations: the ATE translation
+    # with every segment under its position-only (evo) fit instead; None where no segment did,
+    # or where one has no position fit (one side does not move: evo has no figure either)
+    ate_trans_position_fit: Stats | None = None
+
+    @property
+    def from_orientations(self) -> bool:
+        """Some segment's alignment took its rotation from the orientations."""
+        return any(s.alignment.from_orientations for s in self.segments)
 
     @property
     def drift_pct(self) -> float | None:
@@ -165,6 +187,12 @@ class EvalResult:
             "reference_span_s": self.ref_span_s,
             "reference_length_m": self.ref_length_m,
             "ate_trans_m": self.ate_trans.to_dict(),
+            "ate_basis": "orientations" if self.from_orientations else "positions",
+            "ate_trans_position_fit_m": (
+                None
+                if self.ate_trans_position_fit is None
+                else self.ate_trans_position_fit.to_dict()
+            ),
             "ate_rot_deg": self.ate_rot.to_dict(),
             "rpe_delta_trans_m": self.rpe_delta_trans.to_dict(),
             "rpe_delta_rot_deg": self.rpe_delta_rot.to_dict(),
@@ -194,6 +222,10 @@ def _eval_segment(
     )
     p_est, R_est = al.apply(p_e, R_e)
     ate_t, ate_r = ate_errors(p_ref, R_ref, p_est, R_est)
+    ate_t_position_fit = None
+    if al.position_fit is not None:
+        p_pos = al.position_fit.apply_positions(p_e)
+        ate_t_position_fit = np.linalg.norm(p_pos - p_ref, axis=1)
     i, j = delta_pairs(len(ir), cfg.rpe_delta)
     if i.size:
         rpe_t, rpe_r = relative_errors(p_ref, R_ref, p_est, R_est, i, j)
@@ -214,7 +246,24 @@ def _eval_segment(
         rpe_r=rpe_r,
         rpe_t_time_ns=ref.t_ns[ir][j],
         gt_length_m=float(cumulative_distance(p_ref)[-1]),
+        ate_t_position_fit=ate_t_position_fit,
     )
+
+
+def _position_fit_ate(segs: list[SegmentEval]) -> Stats | None:
+    """The pooled ATE translation with every segment under its position-only fit, where some
+    segment's headline came from the orientations (None otherwise, or without a position fit)."""
+    if not any(s.alignment.from_orientations for s in segs):
+        return None
+    parts = []
+    for s in segs:
+        if not s.alignment.from_orientations:
+            parts.append(s.ate_t)
+        elif s.ate_t_position_fit is not None:
+            parts.append(s.ate_t_position_fit)
+        else:
+            return None
+    return Stats.of(np.concatenate(parts))
 
 
 def _with_lengths(seg: SegmentEval, lengths: list[tuple[float | None, float]], tol: float) -> None:
@@ -324,4 +373,5 @@ def evaluate(
         ),
         ref_span_s=ref.duration_s(),
         ref_length_m=ref.path_length(),
+        ate_trans_position_fit=_position_fit_ate(segs),
     )

@@ -78,6 +78,9 @@ class JointResult:
     ate_trans: Stats  # every pair of every session, joint alignment
     ate_rot: Stats
     own_ate_trans: Stats  # the sessions' own-alignment errors, pooled
+    # where the joint alignment took its rotation from the orientations: the joint ATE under the
+    # position-only (evo) fit (`Alignment.position_fit`)
+    ate_trans_position_fit: Stats | None = None
 
     @property
     def matched(self) -> int:
@@ -101,6 +104,11 @@ class JointResult:
             "ate_trans_m": self.ate_trans.to_dict(),
             "ate_rot_deg": self.ate_rot.to_dict(),
             "own_ate_trans_m": self.own_ate_trans.to_dict(),
+            "ate_trans_position_fit_m": (
+                None
+                if self.ate_trans_position_fit is None
+                else self.ate_trans_position_fit.to_dict()
+            ),
             "ratio_joint_to_own": self.ratio,
             "sessions": [s.to_dict() for s in self.sessions],
         }
@@ -161,6 +169,10 @@ def evaluate_joint(
         e_t, e_r = ate_errors(p_r, R_r, p_al, R_al)
         sessions.append(SessionJoint(k, a, t, p_r, R_r, p_al, R_al, e_t, e_r, o))
     cat = np.concatenate
+    position_fit = None
+    if al.position_fit is not None:
+        p_pos = al.position_fit.apply_positions(P_est)
+        position_fit = Stats.of(np.linalg.norm(p_pos - P_ref, axis=1))
     return JointResult(
         label=label,
         config=cfg,
@@ -169,4 +181,5 @@ def evaluate_joint(
         ate_trans=Stats.of(cat([s.ate_t for s in sessions])),
         ate_rot=Stats.of(cat([s.ate_r for s in sessions])),
         own_ate_trans=Stats.of(cat([s.own_ate_t for s in sessions])),
+        ate_trans_position_fit=position_fit,
     )

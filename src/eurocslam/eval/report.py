@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from eurocslam.errors import OutputError
+from eurocslam.eval.align import Alignment
 from eurocslam.eval.evaluate import MIN_FRACTION_LENGTH_M, EvalResult
 from eurocslam.eval.joint import JointResult
 from eurocslam.eval.metrics import Stats
@@ -78,6 +79,31 @@ def _align_text(r: EvalResult) -> str:
     return a
 
 
+def _headline_text(r: EvalResult) -> str | None:
+    """Which ATE figure is the headline, when the alignment took its rotation from the
+    orientations (otherwise the position fit, evo's, is the only one)."""
+    if not r.from_orientations:
+        return None
+    return (
+        f"ATE headline {fmt(r.ate_trans.rmse)} m RMSE, with the rotation from the orientations; "
+        + _position_fit_text(r.ate_trans_position_fit, r.segments[0].alignment, len(r.segments))
+    )
+
+
+def _position_fit_text(pos: Stats | None, al: Alignment, n_segments: int) -> str:
+    """The position-only figure beside an orientation-based headline, and why it is not the
+    headline."""
+    if pos is None:
+        return "a position-only fit (evo's) is not defined here (one side does not move)"
+    scale = ""
+    if al.mode == "sim3" and al.position_fit is not None and n_segments == 1:
+        scale = f", scale {al.position_fit.s:.4f}"
+    return (
+        f"the position-only fit (evo's definition{scale}) gives {fmt(pos.rmse)} m RMSE, but "
+        "its rotation is arbitrary there: it turns the estimate's noise onto the reference's"
+    )
+
+
 def markdown(r: EvalResult, title: str | None = None) -> str:
     """One result as Markdown: header lines, statistics table, segment table when relevant."""
     cfg = r.config
@@ -89,6 +115,9 @@ def markdown(r: EvalResult, title: str | None = None) -> str:
         f"(max diff {cfg.max_diff_s:g} s, offset {cfg.offset_s:g} s)"
     )
     out.append(f"- alignment: {_align_text(r)}")
+    headline = _headline_text(r)
+    if headline:
+        out.append(f"- {headline}")
     out.append(
         f"- coverage: {100 * r.coverage:.1f} % of the {r.ref_span_s:.1f} s ground truth; "
         f"ground-truth path {r.ref_length_m:.2f} m"
@@ -106,6 +135,11 @@ def markdown(r: EvalResult, title: str | None = None) -> str:
         "| metric | rmse | mean | median | std | min | max | n |",
         "|---|---|---|---|---|---|---|---|",
         _row("ATE translation [m]", r.ate_trans),
+        *(
+            [_row("ATE translation, position-only fit (evo) [m]", r.ate_trans_position_fit)]
+            if r.ate_trans_position_fit is not None
+            else []
+        ),
         _row("ATE rotation [deg]", r.ate_rot, 3),
         _row(f"RPE {cfg.rpe_delta} frame translation [m]", r.rpe_delta_trans),
         _row(f"RPE {cfg.rpe_delta} frame rotation [deg]", r.rpe_delta_rot, 3),
@@ -129,7 +163,9 @@ def markdown(r: EvalResult, title: str | None = None) -> str:
             out.append(
                 f"| {s.segment} | {a.matched} / {a.possible} | {dur:.1f} | {s.gt_length_m:.2f} "
                 f"| {fmt(Stats.of(s.ate_t).rmse)} | {fmt(Stats.of(s.rpe_t).rmse)} "
-                f"| {al.mode}, yaw {al.yaw_deg:+.1f} deg, scale {al.s:.3f} |"
+                f"| {al.mode}, yaw {al.yaw_deg:+.1f} deg, scale {al.s:.3f}"
+                + (", rotation from the orientations" if al.from_orientations else "")
+                + " |"
             )
         for sid, why in r.skipped:
             out.append(f"| {sid} | skipped: {why} | | | | | |")
@@ -144,11 +180,18 @@ def markdown_summary(results: list[EvalResult]) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for r in results:
+        mark = " *" if r.from_orientations else ""
         out.append(
-            f"| {r.label} | {fmt(r.ate_trans.rmse)} | {fmt(r.ate_rot.rmse, 3)} "
+            f"| {r.label} | {fmt(r.ate_trans.rmse)}{mark} | {fmt(r.ate_rot.rmse, 3)} "
             f"| {fmt(r.rpe_delta_trans.rmse)} | {fmt(r.drift_pct, 2)} "
             f"| {r.matched} / {r.possible} | {100 * r.coverage:.1f} % |"
         )
+    if any(r.from_orientations for r in results):
+        out += [
+            "",
+            "\\* rotation of the alignment from the orientations (the positions do not decide "
+            "it); the position-only figure is in the section below",
+        ]
     return "\n".join(out) + "\n"
 
 
@@ -181,9 +224,16 @@ def joint_markdown(j: JointResult) -> str:
         a += f", scale {al.s:.4f}"
     if al.mode in ("posyaw", "se3", "sim3", "origin"):
         a += f", yaw {al.yaw_deg:+.2f} deg"
+    if al.note:
+        a += f" ({al.note})"
     n = len(j.sessions)
     out = [f"### Joint: {n} sessions under one alignment, {j.label}", ""]
     out.append(f"- alignment: one {a}, over the {j.matched} matched poses of all sessions")
+    if al.from_orientations:
+        out.append(
+            f"- joint ATE headline {fmt(j.ate_trans.rmse)} m RMSE, with the rotation from the "
+            "orientations; " + _position_fit_text(j.ate_trans_position_fit, al, 1)
+        )
     out.append(
         f"- ATE rmse {fmt(j.ate_trans.rmse)} m joint vs {fmt(j.own_ate_trans.rmse)} m with "
         f"each session aligned on its own ({j.ratio:.2f}x)"

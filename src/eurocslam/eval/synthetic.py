@@ -1,8 +1,10 @@
 """Smooth synthetic trajectories with known truth, for tests and benchmarks of the evaluator.
 
 `smooth_trajectory` draws a flight-like path (sums of sinusoids in x, y, z, yaw following the
-velocity, small roll/pitch) at a given rate. `perturb` makes an "estimate" from it: a known
-similarity transform, a random-walk drift and white noise, optionally subsampled.
+velocity, small roll/pitch) at a given rate. `straight_road` is a car on a straight road (the
+case where a fit of positions leaves the rotation about the road free). `perturb` makes an
+"estimate" from either: a known similarity transform, a random-walk drift and white noise,
+optionally subsampled.
 """
 
 from __future__ import annotations
@@ -56,6 +58,35 @@ def smooth_trajectory(
     pitch = 0.1 * np.sin(2 * np.pi * 0.2 * t + rng.uniform(0, 6))
     R = _rz(yaw) @ _ry(pitch) @ _rx(roll)
     return Trajectory.from_poses(t_ns, make_T(R, p), name=name)
+
+
+def straight_road(
+    length_m: float,
+    wiggle_m: float,
+    direction: tuple[float, float, float] = (1.0, 0.0, 0.0),
+    n: int = 601,
+    rate_hz: float = 10.0,
+    t0_ns: int = T0_NS,
+) -> Trajectory:
+    """A car on a straight road: `n` poses at `rate_hz` over `length_m` along `direction`, with
+    `wiggle_m` of lateral (and half of it vertical) wiggle (0: exactly collinear positions),
+    heading along the road with a little roll and pitch."""
+    t = t0_ns + np.arange(n, dtype=np.int64) * round(1e9 / rate_hz)
+    e0 = np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction)
+    e1 = np.cross([0.0, 0.0, 1.0], e0) if abs(e0[2]) < 0.9 else np.cross([1.0, 0.0, 0.0], e0)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(e0, e1)
+    a = np.linspace(0.0, 1.0, n)
+    p = (
+        np.outer(length_m * a, e0)
+        + np.outer(wiggle_m * np.sin(6 * np.pi * a), e1)
+        + np.outer(0.5 * wiggle_m * np.cos(4 * np.pi * a), e2)
+        + np.array([3.0, -2.0, 0.5])
+    )
+    heading = np.stack([e0, e1, e2], axis=1)  # body x along the road
+    roll, pitch = 0.02 * np.sin(9 * a), 0.01 * np.cos(7 * a)
+    R = heading @ _ry(pitch) @ _rx(roll)
+    return Trajectory.from_poses(t, make_T(R, p), name="road")
 
 
 def random_similarity(seed: int, scale: float = 1.0) -> F64:
