@@ -28,9 +28,7 @@ def _scene(rng: np.random.Generator, n: int, depth: tuple[float, float]) -> tupl
     return pts, T_cand, T_query
 
 
-def _trial(
-    rng: np.random.Generator, pts: F64, T_cand: F64, T_query: F64
-) -> tuple[F64, F64, F64]:
+def _trial(rng: np.random.Generator, pts: F64, T_cand: F64, T_query: F64) -> tuple[F64, F64, F64]:
     """One noisy candidate triangulation and query measurement: (pose error as a world-frame
     twist, predicted covariance, the candidate's measurements)."""
     m_cand = project_rect(pts @ T_cand[:3, :3].T + T_cand[:3, 3], GEOM)

@@ -38,7 +38,7 @@ def stereo_point_cov(uvr: F64, sigma: F64, geom: RectifiedStereo) -> F64:
     J[:, 1, 2] = fx * b / (fy * d)
     J[:, 2, 0] = -fx * b / (d * d)
     J[:, 2, 1] = fx * b / (d * d)
-    return np.einsum("nij,n,nkj->nik", J, sigma * sigma, J)
+    return np.asarray(np.einsum("nij,n,nkj->nik", J, sigma * sigma, J), dtype=np.float64)
 
 
 def match_covariance(
@@ -88,4 +88,4 @@ def match_covariance(
     # T_world_body' = exp(-Ad(T_world_rect0) d) T_world_body: the same covariance, moved
     A = se3_adjoint(inv_T(T_rect0_world))
     cov = A @ cov_cam @ A.T
-    return 0.5 * (cov + cov.T)
+    return np.asarray(0.5 * (cov + cov.T), dtype=np.float64)
