@@ -12,13 +12,8 @@ from gtsam import Pose3
 
 from eurocslam.config import PlacesConfig
 from eurocslam.geometry import F64, make_T, se3_log, so3_exp, so3_log
-from eurocslam.pipeline.places import (
-    FrameBook,
-    PlaceEvent,
-    PlaceStage,
-    loop_gate,
-    yaw_and_translation,
-)
+from eurocslam.pipeline.frames import WorldFrames
+from eurocslam.pipeline.places import PlaceEvent, PlaceStage, loop_gate, yaw_and_translation
 from eurocslam.places.recognizer import PlaceMatch, PlaceView
 from eurocslam.places.vocabulary import BowVector
 
@@ -75,18 +70,19 @@ def _corrections(
     them `drift` away from where the estimate has them, the estimator's covariance of their
     pose is `cov_query` (None: no gate). The D acted on, per keyframe, and the events."""
     given = GivenMatches()
-    book = FrameBook()
-    book.new_segment()
-    stage = PlaceStage(given, cfg, book, lambda seg, ids: np.full((ids.size, 3), np.nan))  # type: ignore[arg-type]
+    frames = WorldFrames()
+    frames.new_segment()
+    stage = PlaceStage(given, cfg, frames, lambda seg, ids: np.full((ids.size, 3), np.nan))  # type: ignore[arg-type]
     stage.file(_view(0, 0.0), 0, 0, np.eye(4), np.zeros((6, 6)))
-    out = []
+    out, events = [], []
     for i in range(2):
         T_est = make_T(np.eye(3), np.array([0.5 * i, 0.0, 0.0]))
         given.match = PlaceMatch(0, 0.5, drift @ T_est, inliers, cov_match)
         asked = None if cov_query is None else (lambda: cov_query)
-        fix = stage.loop(_view(i + 1, 20.0 + i), 0, T_est, asked)
-        out.append(None if fix is None else fix.D)
-    return out, stage.events
+        answer = stage.loop(_view(i + 1, 20.0 + i), 0, T_est, asked)
+        events += answer.events
+        out.append(None if answer.loop is None else answer.loop.D)
+    return out, events
 
 
 def test_two_agreeing_loops_within_the_estimates_uncertainty_correct_the_drift() -> None:

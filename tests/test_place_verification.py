@@ -14,7 +14,8 @@ from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import Extractor, pyramid_scales
 from eurocslam.geometry import inv_T, se3_log
-from eurocslam.pipeline.places import FrameBook, PlaceStage
+from eurocslam.pipeline.frames import WorldFrames
+from eurocslam.pipeline.places import PlaceStage
 from eurocslam.places import default_vocabulary
 from eurocslam.places.recognizer import CandidatePoints, PlaceMatch, PlaceRecognizer, PlaceView
 from eurocslam.synth import Scene
@@ -127,20 +128,20 @@ def test_the_stage_verifies_with_close_points_only(
     at 40 baselines the revisit is found, with every point far (a tiny bound) it is not."""
     cfg = PlacesConfig(verify_max_depth_baselines=baselines)
     r = tiled.recognizer
-    book = FrameBook()
-    book.new_segment()
+    frames = WorldFrames()
+    frames.new_segment()
     stage = PlaceStage.create(
         cfg,
         r.geometry,
         r.scales,
         r.radius_px,
-        book,
+        frames,
         lambda seg, ids: np.full((ids.size, 3), np.nan),
     )
     a, _ = far_apart_frames(tiled.scene)
     cand, query = tiled.view(a), tiled.view(a + 4)
     stage.file(cand, 0, 0, tiled.T_world_body(a))
-    T = stage.relocalize(query, 0)
+    T = stage.relocalize(query, 0).T_seg_query
     assert (T is not None) == found
     if T is not None:
         assert np.linalg.norm(T[:3, 3] - tiled.T_world_body(a + 4)[:3, 3]) < 0.01

@@ -12,7 +12,7 @@ import pytest
 from eurocslam.config import config_from_dict
 from eurocslam.dataset import open_sequence
 from eurocslam.eval.align import align
-from eurocslam.pipeline.places import PlaceEvent
+from eurocslam.pipeline.places import PlaceEvent, PlaceKind
 from eurocslam.pipeline.records import FrameOutput, PipelineState, RunResult
 from eurocslam.pipeline.slam import SlamPipeline
 
@@ -110,7 +110,9 @@ def test_place_events_are_drawn_in_the_mcap(tmp_path: Path) -> None:
     w = SlamMcapWriter(ListSink(), SensorStreams(seq), seq.groundtruth)
     frames = seq.frames()
     t0, t1 = int(seq.frame_times[0]), int(seq.frame_times[1])
-    ev = PlaceEvent("loop", t1, 0, 7, 2, 55, np.array([1.0, 2.0, 3.0]), np.array([1.5, 2.0, 3.0]))
+    ev = PlaceEvent(
+        PlaceKind.LOOP, t1, 0, 7, 2, 55, np.array([1.0, 2.0, 3.0]), np.array([1.5, 2.0, 3.0])
+    )
     tracking = PipelineState.TRACKING
     w.on_frame(next(frames), FrameOutput(t0, tracking, np.eye(4), 0, False, None, None))
     w.on_frame(

@@ -35,7 +35,7 @@ import math
 import re
 from collections.abc import Hashable, Mapping
 from decimal import Decimal, InvalidOperation
-from typing import Final, Literal, TypeVar
+from typing import Any, Final, Literal, TypeVar, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,6 +54,23 @@ UNIT_MIX_ORDERS: Final = 2.0
 ABSOLUTE_NS_MIN: Final = 10**15
 
 _DEC_RE = re.compile(r"^([+-]?)(\d*)(?:\.(\d*))?$")
+
+
+# ---- float seconds for numeric kernels ----------------------------------------------------------
+@overload
+def ns_to_s(dt_ns: int | float) -> float: ...
+@overload
+def ns_to_s(dt_ns: NDArray[Any]) -> NDArray[np.float64]: ...
+def ns_to_s(dt_ns: int | float | NDArray[Any]) -> float | NDArray[np.float64]:
+    """A duration, or a time relative to a t0, in nanoseconds as float seconds (`dt_ns *
+    1e-9`): the one conversion numeric kernels use. Absolute EuRoC stamps (1.4e18 ns) lose
+    their nanoseconds in a float: subtract the t0 first."""
+    return dt_ns * 1e-9
+
+
+def s_to_ns(s: float) -> int:
+    """Float seconds as int64 nanoseconds, rounded to the nearest."""
+    return round(s * 1e9)
 
 
 # ---- tokens -----------------------------------------------------------------------------------

@@ -41,7 +41,7 @@ from eurocslam.backend.final_batch import (
     final_batch,
     imu_bridge,
 )
-from eurocslam.backend.initializer import InitialState
+from eurocslam.backend.initializer import InitialState, InitMode
 from eurocslam.backend.landmarks import LandmarkKeys, landmark_indices
 from eurocslam.backend.observations import StereoAdded, StereoObservations
 from eurocslam.backend.pose_graph import LoopEdge, spread_loops
@@ -125,7 +125,7 @@ class KeyframeEstimator:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps: dict[int, float] = {}
-        dynamic = init.mode == "dynamic"
+        dynamic = init.mode == InitMode.DYNAMIC
         # first pose: yaw and position are the gauge; roll and pitch come from gravity. Pose3's
         # rotation tangent is in the body frame: the world-frame sigmas are rotated into it
         tilt = c.prior_tilt_sigma_dynamic if dynamic else c.prior_tilt_sigma_static

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from enum import Enum
 
 import gtsam
 import numpy as np
@@ -28,6 +29,15 @@ from eurocslam.backend.preintegration import bias, integrate
 from eurocslam.config import InitConfig
 from eurocslam.dataset.types import ImuData
 from eurocslam.geometry import F64, make_T, rotation_between, so3_log
+
+
+class InitMode(str, Enum):
+    """How a segment's estimate starts: the IMU still (`STATIC`), moving (`DYNAMIC`: a stereo VO
+    window aligned with the IMU), or without an IMU (`VISUAL`)."""
+
+    STATIC = "static"
+    DYNAMIC = "dynamic"
+    VISUAL = "visual"
 
 
 @dataclass(frozen=True)
@@ -39,7 +49,7 @@ class InitialState:
     v_world: F64
     bg: F64
     ba: F64
-    mode: str  # "static" or "dynamic"
+    mode: InitMode
     # for dynamic starts: the window's keyframes in the world frame (t_ns, T_world_body, v_world)
     window: tuple[tuple[int, F64, F64], ...] = ()
     # rotation applied to VO-frame quantities to bring them into the world frame: p_w = R @ p_vo
@@ -109,15 +119,15 @@ def static_init(imu: ImuData, t_ns: int, cfg: InitConfig, gravity: float = 9.81)
         v_world=np.zeros(3),
         bg=bg,
         ba=ba,
-        mode="static",
+        mode=InitMode.STATIC,
     )
 
 
-def choose_mode(imu: ImuData, t_first_ns: int, cfg: InitConfig, gravity: float) -> str:
+def choose_mode(imu: ImuData, t_first_ns: int, cfg: InitConfig, gravity: float) -> InitMode:
     if cfg.mode != "auto":
-        return cfg.mode
+        return InitMode(cfg.mode)
     t0, t1 = static_window(t_first_ns, cfg)
-    return "static" if stillness(imu, t0, t1, gravity, cfg).still else "dynamic"
+    return InitMode.STATIC if stillness(imu, t0, t1, gravity, cfg).still else InitMode.DYNAMIC
 
 
 def _preintegrate(
@@ -306,7 +316,7 @@ def dynamic_init(
         v_world=window[0][2],
         bg=bg,
         ba=ba,
-        mode="dynamic",
+        mode=InitMode.DYNAMIC,
         window=tuple(window),
         R_world_vo=R_world_vo,
     )

@@ -246,7 +246,7 @@ class SlamMcapWriter:
     def _write_places(self, t: int, out: FrameOutput) -> None:
         markers = []
         for ev in out.places:
-            ns = "loop_refused" if ev.refused else ev.kind
+            ns = "loop_refused" if ev.refused else ev.kind.value
             markers.append(
                 ros2.Marker(
                     t,

@@ -13,15 +13,18 @@ questions, each answered with a verified match and turned here into a pose in a 
   transform that puts this segment's frame into that one, once `loop_consistency` consecutive
   keyframes agree on it.
 
-Frames: every segment has its own world until it is merged; `FrameBook` says which frame a
-segment is in and its pose there, and where every keyframe is (the pipeline updates the poses
-as the smoother and the final batch refine them).
+Frames: every segment has its own world until it is merged (`frames.WorldFrames`, which the
+pipeline owns: the stage reads it and its answers say what changes). Every question returns a
+`PlaceAnswer`: the events to report and what was found. The stage keeps every keyframe it was
+given (`file`) with its latest pose, which the pipeline updates as the smoother and the final
+batch refine them.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 from numpy.typing import NDArray
@@ -39,15 +42,23 @@ from eurocslam.geometry import (
     yaw_of,
 )
 from eurocslam.maps.store import MapKeyframe
+from eurocslam.pipeline.frames import FrameView
 from eurocslam.places.recognizer import CandidatePoints, PlaceMatch, PlaceRecognizer, PlaceView
 from eurocslam.places.vocabulary import BowVector, Vocabulary, default_vocabulary
+from eurocslam.timebase import s_to_ns
+
+
+class PlaceKind(str, Enum):
+    LOOP = "loop"
+    RELOCALIZATION = "relocalization"
+    MERGE = "merge"
 
 
 @dataclass(frozen=True)
 class PlaceEvent:
     """A loop closed, a relocalization or a merge, for the summary and the MCAP."""
 
-    kind: str  # loop | relocalization | merge
+    kind: PlaceKind
     t_ns: int
     segment: int
     query_key: int  # the keyframe that asked (-1: a lost frame)
@@ -66,7 +77,7 @@ class PlaceEvent:
 
     def to_dict(self) -> dict[str, object]:
         d: dict[str, object] = {
-            "kind": self.kind,
+            "kind": self.kind.value,
             "t_ns": self.t_ns,
             "segment": self.segment,
             "query_keyframe": self.query_key,
@@ -96,31 +107,6 @@ class KeyframeRef:
     cov_seg: F64 | None = None
 
 
-@dataclass
-class FrameBook:
-    """Which world frame each segment is in, and every keyframe's pose."""
-
-    frame_of: list[int] = field(default_factory=list)  # segment -> frame (a segment index)
-    T_frame_seg: list[F64] = field(default_factory=list)  # segment -> its pose in that frame
-    keyframes: dict[int, KeyframeRef] = field(default_factory=dict)
-
-    def new_segment(self) -> None:
-        self.frame_of.append(len(self.frame_of))
-        self.T_frame_seg.append(np.eye(4))
-
-    def merge(self, root: int, frame: int, T_frame_root: F64) -> None:
-        """Put the frame of segment `root` (and every segment in it) into frame `frame`."""
-        for s, f in enumerate(self.frame_of):
-            if f == root:
-                self.frame_of[s] = frame
-                self.T_frame_seg[s] = T_frame_root @ self.T_frame_seg[s]
-
-    def in_frame(self, key: int) -> F64:
-        """A keyframe's pose in its segment's frame."""
-        ref = self.keyframes[key]
-        return self.T_frame_seg[ref.segment] @ ref.T_seg_body
-
-
 @dataclass(frozen=True)
 class LoopFix:
     """A verified loop that passed the gate: `D` moves the segment's estimate onto the old map
@@ -132,6 +118,20 @@ class LoopFix:
     D: F64
     T_cand_query: F64
     cov_after: F64
+    cand_segment: int  # the recognised keyframe's segment and index there
+    cand_index: int
+
+
+@dataclass(frozen=True)
+class PlaceAnswer:
+    """What a question to the place stage found: the events to report, and per question the
+    loop to correct (`loop`), the frame and pose a segment merges into (`merge`), or the lost
+    frame's pose in its segment's world (`T_seg_query`)."""
+
+    events: tuple[PlaceEvent, ...] = ()
+    loop: LoopFix | None = None
+    merge: tuple[int, F64] | None = None
+    T_seg_query: F64 | None = None
 
 
 def loop_gate(D: F64, cov_query: F64, cov_cand: F64, cov_match: F64) -> float:
@@ -178,19 +178,20 @@ class PlaceStage:
         self,
         recognizer: PlaceRecognizer,
         cfg: PlacesConfig,
-        book: FrameBook,
+        frames: FrameView,
         map_points: Callable[[int, NDArray[np.int64]], F64],
         min_disparity_px: float = 0.0,
     ) -> None:
-        """`map_points(segment, landmark ids)`: the map's positions of landmarks in that
-        segment's world (NaN where the map does not have them); `min_disparity_px`: a
+        """`frames`: the world frame of each segment (read; the pipeline changes it as the
+        answers say); `map_points(segment, landmark ids)`: the map's positions of landmarks in
+        that segment's world (NaN where the map does not have them); `min_disparity_px`: a
         keyframe's own stereo points with less disparity are not used for verification."""
         self.recognizer = recognizer
         self.min_disparity_px = min_disparity_px
         self.cfg = cfg
-        self.book = book
+        self.frames = frames
         self.map_points = map_points
-        self.events: list[PlaceEvent] = []
+        self._keyframes: dict[int, KeyframeRef] = {}  # every keyframe filed, by key
         self._next_key = 0
         self._loop_votes: list[tuple[int, F64]] = []  # (inliers, D) of consecutive loops
         # (keyframe key, frame, T_frame_seg, sample) of consecutive matches
@@ -208,7 +209,7 @@ class PlaceStage:
         geometry: RectifiedStereo,
         scales: F64,
         radius_px: float,
-        book: FrameBook,
+        frames: FrameView,
         map_points: Callable[[int, NDArray[np.int64]], F64],
     ) -> PlaceStage:
         """With the configured vocabulary (the shipped one by default); a missing or broken
@@ -216,7 +217,7 @@ class PlaceStage:
         vocab = Vocabulary.load(cfg.vocabulary) if cfg.vocabulary else default_vocabulary()
         recognizer = PlaceRecognizer(vocab, geometry, scales, radius_px, cfg)
         n = cfg.verify_max_depth_baselines
-        return cls(recognizer, cfg, book, map_points, geometry.fx / n if n > 0 else 0.0)
+        return cls(recognizer, cfg, frames, map_points, geometry.fx / n if n > 0 else 0.0)
 
     @property
     def vocabulary_id(self) -> str:
@@ -263,7 +264,7 @@ class PlaceStage:
     ) -> None:
         """Add a keyframe (after it has asked its questions, so it does not find itself), with
         the estimator's covariance of its pose where it was sampled (`KeyframeRef.cov_seg`)."""
-        self.book.keyframes[view.key] = KeyframeRef(segment, index, view.t_ns, T_seg_body, cov_seg)
+        self._keyframes[view.key] = KeyframeRef(segment, index, view.t_ns, T_seg_body, cov_seg)
         self._key_of[(segment, index)] = view.key
         self.recognizer.add(view)
 
@@ -285,18 +286,22 @@ class PlaceStage:
     def keyframes_in(self, frame: int) -> list[tuple[PlaceView, int, F64]]:
         """(view, segment, pose in the frame) of every keyframe in world frame `frame`, in the
         order they were filed."""
-        book = self.book
         return [
-            (self.recognizer.get(key), ref.segment, book.in_frame(key))
-            for key, ref in book.keyframes.items()
-            if book.frame_of[ref.segment] == frame
+            (self.recognizer.get(key), ref.segment, self._in_frame(key))
+            for key, ref in self._keyframes.items()
+            if self.frames.frame_of(ref.segment) == frame
         ]
 
     def update_pose(self, segment: int, index: int, T_seg_body: F64) -> None:
         """A keyframe's refined pose (the smoother's, the final batch's)."""
         key = self._key_of.get((segment, index))
         if key is not None:
-            self.book.keyframes[key].T_seg_body = T_seg_body
+            self._keyframes[key].T_seg_body = T_seg_body
+
+    def _in_frame(self, key: int) -> F64:
+        """A keyframe's pose in its segment's frame."""
+        ref = self._keyframes[key]
+        return self.frames.T_frame_seg(ref.segment) @ ref.T_seg_body
 
     def _find(self, view: PlaceView, accept: Callable[[int], bool]) -> PlaceMatch | None:
         """A verified match, its pose in the candidate's world frame."""
@@ -306,26 +311,26 @@ class PlaceStage:
     def _points(self, cand: PlaceView) -> CandidatePoints:
         """A keyframe's points in its world frame: the map's positions of its landmarks, its
         own close stereo points (moved with its pose) where the map has none, NaN otherwise."""
-        ref = self.book.keyframes[cand.key]
+        ref = self._keyframes[cand.key]
         T_seg_kf = ref.T_seg_body
         own = cand.p_body @ T_seg_kf[:3, :3].T + T_seg_kf[:3, 3]
         far = cand.stereo_uv[:, 0] - cand.stereo_uv[:, 1] < self.min_disparity_px
         own[far] = np.nan
         mapped = self.map_points(ref.segment, cand.landmark_ids)
         pts = np.where(np.isfinite(mapped).all(axis=1, keepdims=True), mapped, own)
-        C = self.book.T_frame_seg[ref.segment]
+        C = self.frames.T_frame_seg(ref.segment)
         return CandidatePoints(pts @ C[:3, :3].T + C[:3, 3], C @ T_seg_kf)
 
     def _sampled_cov(self, key: int) -> F64 | None:
         """A keyframe's pose covariance: its own, else that of the next keyframe of its segment
         that has one (the larger: the gate errs on the side of a smaller allowed drift)."""
-        ref = self.book.keyframes[key]
+        ref = self._keyframes[key]
         index = ref.index
         while True:
             k = self._key_of.get((ref.segment, index))
             if k is None:
                 return None
-            cov = self.book.keyframes[k].cov_seg
+            cov = self._keyframes[k].cov_seg
             if cov is not None:
                 return cov
             index += 1
@@ -337,55 +342,56 @@ class PlaceStage:
         segment: int,
         T_seg_query: F64,
         cov_query: Callable[[], F64 | None] | None = None,
-    ) -> LoopFix | None:
-        """A consistent loop large enough to correct at this keyframe that passes the gate, or
-        None. `cov_query()`: the estimator's covariance of the query's pose (segment frame, as
-        `KeyframeRef.cov_seg`; None: not available, the loop is refused); asked only for a loop
-        that reaches the gate. Without `cov_query` there is no gate (no estimator)."""
-        c, book = self.cfg, self.book
-        frame = book.frame_of[segment]
-        t_max = view.t_ns - round(c.loop_min_age_s * 1e9)
+    ) -> PlaceAnswer:
+        """`loop`: a consistent loop large enough to correct at this keyframe that passes the
+        gate (None: none). `cov_query()`: the estimator's covariance of the query's pose
+        (segment frame, as `KeyframeRef.cov_seg`; None: not available, the loop is refused);
+        asked only for a loop that reaches the gate. Without `cov_query` there is no gate (no
+        estimator)."""
+        c, frames, kfs = self.cfg, self.frames, self._keyframes
+        frame = frames.frame_of(segment)
+        t_max = view.t_ns - s_to_ns(c.loop_min_age_s)
 
         def accept(key: int) -> bool:
             # the recent past of this segment always looks like the present; another
             # segment's keyframes (an earlier session's map among them) are never that
-            ref = book.keyframes.get(key)
+            ref = kfs.get(key)
             return (
                 ref is not None
-                and book.frame_of[ref.segment] == frame
+                and frames.frame_of(ref.segment) == frame
                 and (ref.t_ns <= t_max or ref.segment != segment)
             )
 
         m = self._find(view, accept)
         if m is None:
             self._loop_votes = []
-            return None
-        T_frame_seg = book.T_frame_seg[segment]
+            return PlaceAnswer()
+        T_frame_seg = frames.T_frame_seg(segment)
         T_frame_query = m.T_world_query
-        if book.keyframes[m.key].segment != segment and frame != segment:
+        cand = kfs[m.key]
+        if cand.segment != segment and frame != segment:
             # a place of another segment of this frame: evidence for where this segment sits in
-            # the frame (`refine_frames`), not a drift within it
+            # the frame (`refined_frames`), not a drift within it
             self._samples.setdefault(segment, []).append(self._sample(view, m))
             self._loop_votes = []
-            self._event("loop", view, segment, m, T_frame_query[:3, 3], 0.0, 0.0)
-            return None
+            return PlaceAnswer(
+                (self._event(PlaceKind.LOOP, view, segment, m, T_frame_query[:3, 3], 0.0, 0.0),)
+            )
         D = inv_T(T_frame_seg) @ T_frame_query @ inv_T(T_seg_query)
         votes = [*self._loop_votes, (m.n_inliers, D)][-c.loop_consistency :]
         self._loop_votes = votes
         if len(votes) < c.loop_consistency or not self._agree([d for _, d in votes]):
-            return None
+            return PlaceAnswer()
         self._loop_votes = []
         dm, dd = _size(D)
         p_q = (T_frame_seg @ T_seg_query)[:3, 3]
         small = dm < c.loop_min_correction_m and dd < c.loop_min_correction_deg
         if small or not c.correct_loops_online:
-            self._event("loop", view, segment, m, p_q, 0.0, 0.0)
-            return None
+            return PlaceAnswer((self._event(PlaceKind.LOOP, view, segment, m, p_q, 0.0, 0.0),))
         # the gate: is this drift one the estimate's own uncertainty allows? (segment frame)
-        C_inv = inv_T(T_frame_seg)
-        A = se3_adjoint(C_inv)
+        A = se3_adjoint(inv_T(T_frame_seg))
         cov_match = A @ m.cov_world @ A.T
-        cov_cand = self._sampled_cov(m.key) if book.keyframes[m.key].segment == segment else None
+        cov_cand = self._sampled_cov(m.key) if cand.segment == segment else None
         if cov_cand is None:  # another segment's keyframe: everything this one has drifted
             cov_cand = np.zeros((6, 6))
         chi2 = 0.0
@@ -393,11 +399,20 @@ class PlaceStage:
             cov_q = cov_query()
             chi2 = float("inf") if cov_q is None else loop_gate(D, cov_q, cov_cand, cov_match)
             if not chi2 <= c.loop_gate_chi2:
-                self._event("loop", view, segment, m, p_q, 0.0, 0.0, chi2, True, dm, dd)
-                return None
-        fix = LoopFix(m, D, inv_T(book.in_frame(m.key)) @ T_frame_query, _psd(cov_cand) + cov_match)
-        self._event("loop", view, segment, m, p_q, dm, dd, chi2, False, dm, dd)
-        return fix
+                refused = (chi2, True, dm, dd)
+                return PlaceAnswer(
+                    (self._event(PlaceKind.LOOP, view, segment, m, p_q, 0.0, 0.0, *refused),)
+                )
+        fix = LoopFix(
+            m,
+            D,
+            inv_T(self._in_frame(m.key)) @ T_frame_query,
+            _psd(cov_cand) + cov_match,
+            cand.segment,
+            cand.index,
+        )
+        ev = self._event(PlaceKind.LOOP, view, segment, m, p_q, dm, dd, chi2, False, dm, dd)
+        return PlaceAnswer((ev,), loop=fix)
 
     def _agree(self, Ds: list[F64]) -> bool:
         ref = Ds[-1]
@@ -408,69 +423,79 @@ class PlaceStage:
         return True
 
     # ---- relocalization -----------------------------------------------------------------------
-    def relocalize(self, view: PlaceView, segment: int) -> F64 | None:
-        """The lost frame's pose in its segment's world, found by appearance, or None."""
-        book = self.book
-        frame = book.frame_of[segment]
+    def relocalize(self, view: PlaceView, segment: int) -> PlaceAnswer:
+        """`T_seg_query`: the lost frame's pose in its segment's world, found by appearance
+        (None: not found)."""
+        frames, kfs = self.frames, self._keyframes
+        frame = frames.frame_of(segment)
 
         def accept(key: int) -> bool:
-            ref = book.keyframes.get(key)
-            return ref is not None and book.frame_of[ref.segment] == frame
+            ref = kfs.get(key)
+            return ref is not None and frames.frame_of(ref.segment) == frame
 
         m = self._find(view, accept)
         if m is None:
-            return None
-        T_seg_query = inv_T(book.T_frame_seg[segment]) @ m.T_world_query
-        self._event("relocalization", view, segment, m, m.T_world_query[:3, 3], 0.0, 0.0)
-        return T_seg_query
+            return PlaceAnswer()
+        T_seg_query = inv_T(frames.T_frame_seg(segment)) @ m.T_world_query
+        ev = self._event(
+            PlaceKind.RELOCALIZATION, view, segment, m, m.T_world_query[:3, 3], 0.0, 0.0
+        )
+        return PlaceAnswer((ev,), T_seg_query=T_seg_query)
 
     # ---- merging ------------------------------------------------------------------------------
-    def merge(self, view: PlaceView, segment: int, T_seg_query: F64) -> tuple[int, F64] | None:
-        """(frame, T_frame_seg) once the segment has recognised another frame consistently."""
-        book = self.book
-        frame = book.frame_of[segment]
+    def merge(self, view: PlaceView, segment: int, T_seg_query: F64) -> PlaceAnswer:
+        """`merge`: (frame, T_frame_seg) once the segment has recognised another frame
+        consistently (the caller puts the segment's frame there)."""
+        frames, kfs = self.frames, self._keyframes
+        frame = frames.frame_of(segment)
         # a segment merges only as its frame's root, and only into another frame
-        if not self.cfg.merge or frame != segment or len(set(book.frame_of)) < 2:
+        if not self.cfg.merge or frame != segment or frames.n_frames() < 2:
             self._merge_votes = []
-            return None
+            return PlaceAnswer()
 
         def accept(key: int) -> bool:
-            ref = book.keyframes.get(key)
-            return ref is not None and book.frame_of[ref.segment] != frame
+            ref = kfs.get(key)
+            return ref is not None and frames.frame_of(ref.segment) != frame
 
         m = self._find(view, accept)
         if m is None:
             self._merge_votes = []
-            return None
-        other = book.frame_of[book.keyframes[m.key].segment]
+            return PlaceAnswer()
+        other = frames.frame_of(kfs[m.key].segment)
         T_frame_seg = m.T_world_query @ inv_T(T_seg_query)
         votes = [v for v in self._merge_votes if v[1] == other]
         n = self.cfg.loop_consistency
         self._merge_votes = [*votes, (view.key, other, T_frame_seg, self._sample(view, m))][-n:]
         if len(self._merge_votes) < n or not self._agree([v[2] for v in self._merge_votes]):
-            return None
+            return PlaceAnswer()
         self._samples[segment] = [v[3] for v in self._merge_votes]
         self._merge_votes = []
-        book.merge(segment, other, T_frame_seg)
         p_q = (T_frame_seg @ T_seg_query)[:3, 3]
         dm, dd = _size(T_frame_seg)
-        self._event("merge", view, segment, m, p_q, dm, dd)
-        return other, T_frame_seg
+        ev = self._event(PlaceKind.MERGE, view, segment, m, p_q, dm, dd)
+        return PlaceAnswer((ev,), merge=(other, T_frame_seg))
 
     def _sample(self, view: PlaceView, m: PlaceMatch) -> tuple[int, int, F64]:
-        return view.key, m.key, inv_T(self.book.in_frame(m.key)) @ m.T_world_query
+        return view.key, m.key, inv_T(self._in_frame(m.key)) @ m.T_world_query
 
-    def refine_frames(self) -> None:
-        """Where each merged segment sits in its frame, from every place of another segment its
-        keyframes recognised (at the merge and after it), with the final keyframe poses: the
-        mean of the transforms they give, far ones dropped. One match measures it to a few
-        centimetres, tens of them to millimetres. Older segments first: a segment merged into
-        a merged one follows it."""
-        book = self.book
+    def refined_frames(self) -> dict[int, F64]:
+        """Where each merged segment sits in its frame (segment -> T_frame_seg), from every
+        place of another segment its keyframes recognised (at the merge and after it), with the
+        final keyframe poses: the mean of the transforms they give, far ones dropped. One
+        match measures it to a few centimetres, tens of them to millimetres. Older segments
+        first: a segment merged into a merged one follows it."""
+        kfs = self._keyframes
+        placed: dict[int, F64] = {}
+
+        def in_frame(key: int) -> F64:
+            seg = kfs[key].segment
+            T_frame_seg = placed[seg] if seg in placed else self.frames.T_frame_seg(seg)
+            return T_frame_seg @ kfs[key].T_seg_body
+
         for seg in sorted(self._samples):
             Ts = np.array(
                 [
-                    book.in_frame(match) @ T_match_query @ inv_T(book.keyframes[query].T_seg_body)
+                    in_frame(match) @ T_match_query @ inv_T(kfs[query].T_seg_body)
                     for query, match, T_match_query in self._samples[seg]
                 ]
             ).reshape(-1, 4, 4)
@@ -479,11 +504,12 @@ class PlaceStage:
             keep = dist <= max(3.0 * float(np.median(dist)), 0.01)
             u, _, vt = np.linalg.svd(Ts[keep, :3, :3].sum(axis=0))
             R = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-            book.T_frame_seg[seg] = make_T(R, t[keep].mean(axis=0))
+            placed[seg] = make_T(R, t[keep].mean(axis=0))
+        return placed
 
     def _event(
         self,
-        kind: str,
+        kind: PlaceKind,
         view: PlaceView,
         segment: int,
         m: PlaceMatch,
@@ -494,23 +520,21 @@ class PlaceStage:
         refused: bool = False,
         drift_m: float = 0.0,
         drift_deg: float = 0.0,
-    ) -> None:
-        p_match = self.book.in_frame(m.key)[:3, 3]
-        self.events.append(
-            PlaceEvent(
-                kind,
-                view.t_ns,
-                segment,
-                view.key,
-                m.key,
-                m.n_inliers,
-                p_query,
-                p_match,
-                dm,
-                dd,
-                chi2,
-                refused,
-                drift_m,
-                drift_deg,
-            )
+    ) -> PlaceEvent:
+        p_match = self._in_frame(m.key)[:3, 3]
+        return PlaceEvent(
+            kind,
+            view.t_ns,
+            segment,
+            view.key,
+            m.key,
+            m.n_inliers,
+            p_query,
+            p_match,
+            dm,
+            dd,
+            chi2,
+            refused,
+            drift_m,
+            drift_deg,
         )

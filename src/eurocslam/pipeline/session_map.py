@@ -6,7 +6,7 @@ in the place database with their saved poses, its landmarks answer `map_points` 
 optimised again: the old map stays fixed). The session itself starts as segment 1 in its own
 world, exactly as a segment after a reset, and place recognition merges it into the map's frame
 once its keyframes recognise the map consistently (`PlaceStage.merge`); every later place of the
-map it recognises refines where it sits there (`PlaceStage.refine_frames`). Its trajectory, map
+map it recognises refines where it sits there (`PlaceStage.refined_frames`). Its trajectory, map
 and MCAP then come out in the old map's frame.
 
 The saved map holds the keyframes of one world frame (the map's frame when one was given, else
@@ -18,7 +18,7 @@ segments, with their positions in the frame and the descriptor of one observatio
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,7 +37,9 @@ from eurocslam.maps.store import (
     rig_record,
     session_record,
 )
-from eurocslam.pipeline.places import PlaceStage
+from eurocslam.pipeline.frames import FrameView
+from eurocslam.pipeline.places import PlaceEvent, PlaceKind, PlaceStage
+from eurocslam.timebase import ns_to_s
 
 MAP_SEGMENT = 0  # the segment an earlier map is filed as
 
@@ -155,13 +157,13 @@ def build_map(
 
 
 def localized_after_s(
-    first_t_ns: list[int], places: PlaceStage | None, frame_of: list[int]
+    first_t_ns: list[int], events: Iterable[PlaceEvent], frames: FrameView
 ) -> float | None:
     """Seconds from a session's first frame (the earliest of its segments' `first_t_ns`) to its
     first merge into the earlier map's frame; None if it never merged."""
     merges = [
         e.t_ns
-        for e in (places.events if places is not None else [])
-        if e.kind == "merge" and frame_of[e.segment] == MAP_SEGMENT
+        for e in events
+        if e.kind == PlaceKind.MERGE and frames.frame_of(e.segment) == MAP_SEGMENT
     ]
-    return round((min(merges) - min(first_t_ns)) * 1e-9, 3) if merges and first_t_ns else None
+    return round(ns_to_s(min(merges) - min(first_t_ns)), 3) if merges and first_t_ns else None

@@ -48,13 +48,8 @@ from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingStat
 from eurocslam.geometry import F64, inv_T
 from eurocslam.maps.store import SavedMap
 from eurocslam.memory import peak_rss_mb, usable_cores
-from eurocslam.pipeline.places import (
-    FrameBook,
-    LoopFix,
-    PlaceEvent,
-    PlaceStage,
-    yaw_and_translation,
-)
+from eurocslam.pipeline.frames import WorldFrames
+from eurocslam.pipeline.places import LoopFix, PlaceEvent, PlaceStage, yaw_and_translation
 from eurocslam.pipeline.records import (
     FrameObserver,
     FrameOutput,
@@ -68,7 +63,7 @@ from eurocslam.pipeline.startup import Startup
 from eurocslam.pipeline.summary import IMU_BETWEEN, VO_BETWEEN, RunSummary, cpu_seconds
 
 
-class SlamPipeline(Startup):
+class SlamPipeline:
     """Stereo-inertial or visual-only SLAM over a `SequenceSource` (`cfg.mode`; `auto` is
     resolved against the source's IMU)."""
 
@@ -93,7 +88,7 @@ class SlamPipeline(Startup):
         self.tracker = StereoTracker(
             self.features.extractor.rectifier, self.cfg.frontend.for_mode(self.cfg.inertial)
         )
-        self.frames = FrameBook()  # the world frame of each segment
+        self.frames = WorldFrames()  # the world frame of each segment
         self.places = (
             PlaceStage.create(
                 self.cfg.places,
@@ -106,7 +101,8 @@ class SlamPipeline(Startup):
             if self.cfg.places.enabled
             else None
         )
-        self._events_out = 0  # place events already handed to observers
+        self._events: list[PlaceEvent] = []  # every place event of the run
+        self._events_out = 0  # those already handed to observers
         self.state = PipelineState.INIT
         self.segments: list[Segment] = []
         self.prior_map = prior_map
@@ -116,9 +112,6 @@ class SlamPipeline(Startup):
         self._last_pose: F64 | None = None
         self._last_good_t: int | None = None  # the last tracked frame ...
         self._last_good_T: F64 | None = None  # ... and its pose
-        self._hint_T: F64 | None = None  # pose to restart from after a reset
-        self._init_mode: str | None = None
-        self._window: list[tuple[int, F64]] = []  # dynamic init: VO frames (t, T_world_body)
         self._online: list[tuple[int, F64, int]] = []  # (t, T in the segment's world, segment)
 
     # ---- segments -------------------------------------------------------------------------------
@@ -126,9 +119,11 @@ class SlamPipeline(Startup):
     def segment(self) -> Segment:
         return self.segments[-1]
 
-    def _new_segment(self) -> None:
+    def _new_segment(self, T_hint: F64 | None = None) -> None:
+        """A new segment, started by a new `Startup` from `T_hint` (None: the origin)."""
         self.segments.append(Segment(len(self.segments)))
         self.frames.new_segment()
+        self.startup = Startup(self.cfg, self.imu, self.source.rig, T_hint)
         self.est = KeyframeEstimator(self.source.rig.imu, self.stereo, self.imu, self.cfg)
         self._nav: NavEstimate | None = None  # the latest keyframe's smoothed state
         self._kf_index = -1  # the latest keyframe's index in the segment
@@ -162,7 +157,7 @@ class SlamPipeline(Startup):
             return None
 
         def points_in_frame(segment: int, ids: np.ndarray) -> F64:
-            C = self.frames.T_frame_seg[segment]
+            C = self.frames.T_frame_seg(segment)
             return self._map_points(segment, ids) @ C[:3, :3].T + C[:3, 3]
 
         return build_map(
@@ -195,11 +190,8 @@ class SlamPipeline(Startup):
         self.summary.resets.append((t_ns, reason))
         self._finish_segment()
         self.tracker = self.tracker.restarted()
-        self._new_segment()
+        self._new_segment(T_hint)
         self.state = PipelineState.INIT
-        self._init_mode = None
-        self._window = []
-        self._hint_T = T_hint
 
     # ---- main loop ------------------------------------------------------------------------------
     def run(
@@ -280,7 +272,7 @@ class SlamPipeline(Startup):
         frame is its pose (across an IMU dropout, the estimator's constant velocity); in a
         dynamic start's VO window, the motion between its last two tracked frames."""
         if self.state == PipelineState.INIT:
-            T_vo = extrapolate_last(self._window, t)
+            T_vo = self.startup.between(t)
             if T_vo is not None:
                 self.segment.records.append(FrameRecord(t, T_vo, -1))
             self.summary.count_path(VO_BETWEEN)
@@ -290,6 +282,21 @@ class SlamPipeline(Startup):
         self.segment.records.append(FrameRecord(t, T, self._kf_index))
         self.summary.count_path(IMU_BETWEEN)
         return self._emit(t, PipelineState.TRACKING, T, None, self._nav, left_out=True)
+
+    # ---- INIT -----------------------------------------------------------------------------------
+    def _step_init(self, ff: FrameFeatures) -> FrameOutput:
+        t = ff.t_ns
+        st = self.startup.step(ff, self.tracker, self.est, self.segment)
+        if st.failure:
+            self._reset(t, st.failure, self.startup.hint)
+            return self._emit(t, PipelineState.INIT, None, st.fr)
+        if st.started is None:
+            return self._emit(t, PipelineState.INIT, st.T_world_body, st.fr)
+        assert st.mode is not None and st.fr is not None
+        self.summary.init_modes.append(st.mode.value)
+        nav = st.started.nav
+        self.tracker.apply(MapCorrection(nav.T_world_body))
+        return self._keyframe(nav.t_ns, st.started, st.fr)
 
     # ---- TRACKING / LOST ------------------------------------------------------------------------
     def _step_tracking(self, ff: FrameFeatures) -> FrameOutput:
@@ -382,7 +389,9 @@ class SlamPipeline(Startup):
         ok = ff.stereo.valid
         uv = np.column_stack([ff.left.uv[ok, 0], ff.stereo.uR[ok], ff.left.uv[ok, 1]])
         view = self.places.view(ff.t_ns, uv, ff.left.desc[ok], octave=ff.left.octave[ok])
-        T = self.places.relocalize(view, self.segment.index)
+        found = self.places.relocalize(view, self.segment.index)
+        self._events += found.events
+        T = found.T_seg_query
         if T is None:
             return None
         fr = self.tracker.restart_map(ff, T)
@@ -444,10 +453,15 @@ class SlamPipeline(Startup):
         for k, T in upd.window:
             p.update_pose(seg, k, T)
         view = p.view(t, fr.stereo_uv, fr.descriptors, p.new_key(), fr.landmark_ids, fr.octaves)
-        if p.merge(view, seg, upd.nav.T_world_body) is None:
-            fix = p.loop(view, seg, upd.nav.T_world_body, self.est.pose_covariance)
-            if fix is not None:
-                upd = self._close_loop(fix, upd)
+        merged = p.merge(view, seg, upd.nav.T_world_body)
+        self._events += merged.events
+        if merged.merge is not None:
+            self.frames.merge(seg, *merged.merge)
+        else:
+            loop = p.loop(view, seg, upd.nav.T_world_body, self.est.pose_covariance)
+            self._events += loop.events
+            if loop.loop is not None:
+                upd = self._close_loop(loop.loop, upd)
         # the estimator's uncertainty, sampled for the loop gate (`PlaceStage.loop`)
         cov = None
         if (t - self._cov_sampled_t) * 1e-9 >= self.cfg.places.loop_covariance_every_s:
@@ -461,10 +475,9 @@ class SlamPipeline(Startup):
         starts again from the moved state, the tracker's map moves with it, and the segment's
         final batch gets the loop edge when the recognised keyframe is in this segment."""
         assert self.places is not None
-        ref = self.frames.keyframes[fix.match.key]
         edge = (
-            LoopEdge(ref.index, upd.index, fix.T_cand_query)
-            if ref.segment == self.segment.index
+            LoopEdge(fix.cand_index, upd.index, fix.T_cand_query)
+            if fix.cand_segment == self.segment.index
             else None
         )
         D = fix.D
@@ -555,17 +568,15 @@ class SlamPipeline(Startup):
         seg = self.segment.index if segment is None else segment
         if T is not None:
             self._online.append((t, T, seg))
-        C = self.frames.T_frame_seg[seg]
+        C = self.frames.T_frame_seg(seg)
         if not np.array_equal(C, np.eye(4)):
             T = None if T is None else C @ T
             if path is not None:
                 path = KeyframePath(path.t_ns, C @ path.T_world_body)
             if landmarks is not None:
                 landmarks = landmarks @ C[:3, :3].T + C[:3, 3]
-        events: tuple[PlaceEvent, ...] = ()
-        if self.places is not None and len(self.places.events) > self._events_out:
-            events = tuple(self.places.events[self._events_out :])
-            self._events_out = len(self.places.events)
+        events = tuple(self._events[self._events_out :])
+        self._events_out = len(self._events)
         return FrameOutput(
             t,
             state,
@@ -580,7 +591,7 @@ class SlamPipeline(Startup):
             n_active_landmarks=self._n_active if segment is None else 0,
             keyframe_path=path,
             landmarks=landmarks,
-            frame=self.frames.frame_of[seg],
+            frame=self.frames.frame_of(seg),
             places=events,
             left_out=left_out,
         )
@@ -588,20 +599,21 @@ class SlamPipeline(Startup):
     def result(self) -> RunResult:
         s = self.summary
         s.segments = sum(1 for seg in self.segments if seg.records)
-        book = self.frames
+        frames = self.frames
         if self.places is not None:
-            self.places.refine_frames()
-        final = assemble(self.segments, book.frame_of, book.T_frame_seg)
+            for seg, T_frame_seg in self.places.refined_frames().items():
+                frames.place(seg, T_frame_seg)
+        final = assemble(self.segments, frames.frames, frames.poses)
         s.landmarks = len(final.landmarks)
         if self.places is not None:
-            s.places = list(self.places.events)
+            s.places = list(self._events)
             s.place_db = self.places.stats()
         if self.prior_map is not None:
             starts = [seg.records[0].t_ns for seg in self.segments if seg.records]
-            s.prior_map["localized_after_s"] = localized_after_s(starts, self.places, book.frame_of)
+            s.prior_map["localized_after_s"] = localized_after_s(starts, self._events, frames)
         on_t = np.array([o[0] for o in self._online], dtype=np.int64)
-        on_T = np.array([book.T_frame_seg[o[2]] @ o[1] for o in self._online]).reshape(-1, 4, 4)
-        on_s = np.array([book.frame_of[o[2]] for o in self._online], dtype=np.int64)
+        on_T = np.array([frames.T_frame_seg(o[2]) @ o[1] for o in self._online]).reshape(-1, 4, 4)
+        on_s = np.array([frames.frame_of(o[2]) for o in self._online], dtype=np.int64)
         return RunResult(
             on_t,
             on_T,

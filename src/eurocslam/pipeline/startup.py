@@ -1,4 +1,4 @@
-"""The pipeline's INIT state: how a segment starts (`SlamPipeline` takes these methods).
+"""The pipeline's INIT state: how a segment starts (`Startup`, one per segment).
 
 The initialisation kind is chosen from the IMU around the current frame: *static* (still:
 attitude and gyro bias from the IMU mean, the estimator starts at once) or *dynamic* (moving:
@@ -7,15 +7,23 @@ aligned for gravity, velocity and biases). Poses are output from the first frame
 cases; during a dynamic window they come from VO in a frame levelled by the mean accelerometer
 reading. Visual-only starts at once, in the attitude `init.visual_world` names (nothing measures
 gravity).
+
+`Startup.step` takes one frame and says what came of it (`StartupStep`): still waiting (with the
+frame's VO pose in a dynamic window), the estimator started (its first keyframe), or the
+estimator could not start (the pipeline resets). It owns the choice of kind and the VO window;
+it writes the frames of the window into the segment it is given.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from eurocslam.backend.estimator import KeyframeEstimator
 from eurocslam.backend.initializer import (
     InitialState,
+    InitMode,
     choose_mode,
     dynamic_init,
     gravity_aligned_rotation,
@@ -25,123 +33,129 @@ from eurocslam.backend.initializer import (
 from eurocslam.backend.preintegration import make_params
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate
 from eurocslam.config import RunConfig
-from eurocslam.dataset.types import ImuData, SequenceSource
+from eurocslam.dataset.calib import StereoRig
+from eurocslam.dataset.types import ImuData
 from eurocslam.frontend.extraction import FrameFeatures
 from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult, MapCorrection
 from eurocslam.geometry import F64, make_T
-from eurocslam.pipeline.records import FrameOutput, PipelineState
-from eurocslam.pipeline.segments import FrameRecord, Segment, interpolate_between
-from eurocslam.pipeline.summary import RunSummary
+from eurocslam.pipeline.segments import FrameRecord, Segment, extrapolate_last, interpolate_between
+from eurocslam.timebase import ns_to_s
 
 # an optical camera (x right, y down, z forward) held level, looking along world x (z up)
 R_WORLD_CAM_LEVEL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
 
+@dataclass(frozen=True)
+class StartupStep:
+    """What INIT made of one frame: `started` (the estimator's first keyframe) once it has
+    started, `failure` (the reason) when it could not; else still waiting, with the frame's
+    pose when it has one (a dynamic window's VO)."""
+
+    fr: FrontendResult | None
+    T_world_body: F64 | None = None
+    started: KeyframeUpdate | None = None
+    mode: InitMode | None = None
+    failure: str = ""
+
+
 class Startup:
-    """INIT: the first keyframe of a segment. Mixed into `SlamPipeline`."""
+    """INIT of one segment. `hint`: the pose to start from (the last trusted one, after a
+    reset); None: the world's origin."""
 
-    source: SequenceSource
-    cfg: RunConfig
-    imu: ImuData
-    tracker: StereoTracker
-    est: KeyframeEstimator
-    summary: RunSummary
-    state: PipelineState
-    _init_mode: str | None
-    _hint_T: F64 | None
-    _window: list[tuple[int, F64]]
-    _last_good_t: int | None
-    _last_good_T: F64 | None
+    def __init__(
+        self, cfg: RunConfig, imu: ImuData, rig: StereoRig, hint: F64 | None = None
+    ) -> None:
+        self.cfg = cfg
+        self.imu = imu
+        self.rig = rig
+        self.hint = hint
+        self._mode: InitMode | None = None
+        self._window: list[tuple[int, F64]] = []  # dynamic: VO frames (t, T_world_body)
 
-    @property
-    def segment(self) -> Segment:
-        raise NotImplementedError
+    def between(self, t_ns: int) -> F64 | None:
+        """The pose of a frame left out by `track_every` in a dynamic window: the motion between
+        its last two tracked frames (None before the first)."""
+        return extrapolate_last(self._window, t_ns)
 
-    def _reset(self, t_ns: int, reason: str, T_hint: F64 | None) -> None:
-        raise NotImplementedError
-
-    def _emit(
-        self, t: int, state: PipelineState, T: F64 | None, fr: FrontendResult | None
-    ) -> FrameOutput:
-        raise NotImplementedError
-
-    def _keyframe(self, t: int, upd: KeyframeUpdate, fr: FrontendResult) -> FrameOutput:
-        raise NotImplementedError
-
-    def _step_init(self, ff: FrameFeatures) -> FrameOutput:
+    def step(
+        self,
+        ff: FrameFeatures,
+        tracker: StereoTracker,
+        est: KeyframeEstimator,
+        segment: Segment,
+    ) -> StartupStep:
         t = ff.t_ns
         g = self.cfg.imu.gravity
-        if self._init_mode is None:
+        if self._mode is None:
             if not self.cfg.inertial:
-                self._init_mode = "visual"
+                self._mode = InitMode.VISUAL
             else:
-                self._init_mode = choose_mode(self.imu, t, self.cfg.init, g)
-        seg = self.segment
-        if self._init_mode in ("static", "visual"):
-            if self._init_mode == "static":
+                self._mode = choose_mode(self.imu, t, self.cfg.init, g)
+        if self._mode in (InitMode.STATIC, InitMode.VISUAL):
+            if self._mode == InitMode.STATIC:
                 try:
                     init = static_init(self.imu, t, self.cfg.init, g)
                 except ValueError:
-                    self._init_mode = None
-                    return self._emit(t, PipelineState.INIT, None, None)
-                if self._hint_T is not None:
+                    self._mode = None
+                    return StartupStep(None)
+                if self.hint is not None:
                     init = InitialState(
                         t,
-                        make_T(init.T_world_body[:3, :3], self._hint_T[:3, 3]),
+                        make_T(init.T_world_body[:3, :3], self.hint[:3, 3]),
                         init.v_world,
                         init.bg,
                         init.ba,
-                        "static",
+                        InitMode.STATIC,
                     )
             else:
                 T0 = (
-                    self._hint_T
-                    if self._hint_T is not None
+                    self.hint
+                    if self.hint is not None
                     else make_T(self._visual_attitude(), np.zeros(3))
                 )
-                init = InitialState(t, T0, np.zeros(3), np.zeros(3), np.zeros(3), "visual")
-            fr = self.tracker.track(ff, init.T_world_body)
+                init = InitialState(t, T0, np.zeros(3), np.zeros(3), np.zeros(3), InitMode.VISUAL)
+            fr = tracker.track(ff, init.T_world_body)
             if fr.T_world_body is None:
-                return self._emit(t, PipelineState.INIT, None, fr)
-            return self._start_estimator(init, fr)
+                return StartupStep(fr)
+            return self._start_estimator(init, fr, est, segment)
         # dynamic: stereo VO in a levelled frame, then align with the IMU
         if not self._window:
             R0 = self._levelled_attitude(t)
-            p0 = self._hint_T[:3, 3] if self._hint_T is not None else np.zeros(3)
-            fr = self.tracker.track(ff, make_T(R0, p0))
+            p0 = self.hint[:3, 3] if self.hint is not None else np.zeros(3)
+            fr = tracker.track(ff, make_T(R0, p0))
         else:
-            fr = self.tracker.track(ff, None)
+            fr = tracker.track(ff, None)
         if fr.T_world_body is None:
-            return self._emit(t, PipelineState.INIT, None, fr)
+            return StartupStep(fr)
         self._window.append((t, fr.T_world_body))
-        seg.records.append(FrameRecord(t, fr.T_world_body, -1))
+        segment.records.append(FrameRecord(t, fr.T_world_body, -1))
         if len(self._window) > 1:  # frames left out (track_every) since the last: interpolated
-            interpolate_between(seg.records, self._window[-2], self._window[-1])
-        span = (t - self._window[0][0]) * 1e-9
+            interpolate_between(segment.records, self._window[-2], self._window[-1])
+        span = ns_to_s(t - self._window[0][0])
         c = self.cfg.init
         if span >= c.dynamic_window_s and len(self._window) >= c.dynamic_min_keyframes:
             sel = self._window[::2] if len(self._window) > 30 else self._window
             if sel[-1] is not self._window[-1]:
                 sel = [*sel, self._window[-1]]
             try:
-                assert self.source.rig.imu is not None  # stereo-inertial
-                params = make_params(self.source.rig.imu, self.cfg.imu)
+                assert self.rig.imu is not None  # stereo-inertial
+                params = make_params(self.rig.imu, self.cfg.imu)
                 init = dynamic_init(params, self.imu, [w[0] for w in sel], [w[1] for w in sel], g)
             except (ValueError, np.linalg.LinAlgError):
                 if span < 3 * c.dynamic_window_s:
-                    return self._emit(t, PipelineState.INIT, fr.T_world_body, fr)
+                    return StartupStep(fr, fr.T_world_body)
                 init = self._fallback_init()
-            return self._finish_dynamic(init, fr)
-        return self._emit(t, PipelineState.INIT, fr.T_world_body, fr)
+            return self._finish_dynamic(init, fr, tracker, est, segment)
+        return StartupStep(fr, fr.T_world_body)
 
     def _levelled_attitude(self, t: int) -> F64:
         t0, t1 = static_window(t, self.cfg.init)
         w = self.imu.slice(t0, t1)
         if len(w) >= 3:
             return gravity_aligned_rotation(np.mean(w.accel, axis=0))
-        if self._hint_T is not None:
-            return self._hint_T[:3, :3]
+        if self.hint is not None:
+            return self.hint[:3, :3]
         return self._visual_attitude()
 
     def _visual_attitude(self) -> F64:
@@ -149,44 +163,52 @@ class Startup:
         looking along world x, or the first body frame."""
         if self.cfg.init.visual_world == "body":
             return np.eye(3)
-        R_body_cam0 = self.source.rig.cam0.T_body_cam[:3, :3]
+        R_body_cam0 = self.rig.cam0.T_body_cam[:3, :3]
         return R_WORLD_CAM_LEVEL @ R_body_cam0.T
 
     def _fallback_init(self) -> InitialState:
         """The window could not be aligned (too little motion): keep the levelled VO frame,
         velocity from VO differences, zero biases with their priors."""
         (ta, Ta), (tb, Tb) = self._window[-2], self._window[-1]
-        v = (Tb[:3, 3] - Ta[:3, 3]) / max((tb - ta) * 1e-9, 1e-3)
+        v = (Tb[:3, 3] - Ta[:3, 3]) / max(ns_to_s(tb - ta), 1e-3)
         window = tuple((w[0], w[1], v) for w in self._window)
-        return InitialState(tb, Tb, v, np.zeros(3), np.zeros(3), "dynamic", window, np.eye(3))
+        return InitialState(
+            tb, Tb, v, np.zeros(3), np.zeros(3), InitMode.DYNAMIC, window, np.eye(3)
+        )
 
-    def _finish_dynamic(self, init: InitialState, fr: FrontendResult) -> FrameOutput:
+    def _finish_dynamic(
+        self,
+        init: InitialState,
+        fr: FrontendResult,
+        tracker: StereoTracker,
+        est: KeyframeEstimator,
+        segment: Segment,
+    ) -> StartupStep:
         R = init.R_world_vo if init.R_world_vo is not None else np.eye(3)
         C = make_T(R, np.zeros(3))
         # re-express the window and the tracker's map in the gravity-aligned world
-        for rec in self.segment.records:
+        for rec in segment.records:
             rec.T_chain = C @ rec.T_chain
         assert fr.T_world_body is not None
-        self.tracker.apply(MapCorrection(C @ fr.T_world_body, T_new_old=C))
+        tracker.apply(MapCorrection(C @ fr.T_world_body, T_new_old=C))
         t_last, T_last, v_last = init.window[-1]
-        last = InitialState(t_last, T_last, v_last, init.bg, init.ba, "dynamic")
+        last = InitialState(t_last, T_last, v_last, init.bg, init.ba, InitMode.DYNAMIC)
         self._window = []
-        return self._start_estimator(last, fr, window_frame=True)
+        return self._start_estimator(last, fr, est, segment, window_frame=True)
 
     def _start_estimator(
-        self, init: InitialState, fr: FrontendResult, window_frame: bool = False
-    ) -> FrameOutput:
-        t = init.t_ns
+        self,
+        init: InitialState,
+        fr: FrontendResult,
+        est: KeyframeEstimator,
+        segment: Segment,
+        window_frame: bool = False,
+    ) -> StartupStep:
         try:
-            upd = self.est.initialize(init, fr.landmark_ids, fr.stereo_uv, fr.stereo_sigma)
+            upd = est.initialize(init, fr.landmark_ids, fr.stereo_uv, fr.stereo_sigma)
         except EstimatorFailure as e:
-            self._reset(t, f"initialisation failed: {e}", self._hint_T)
-            return self._emit(t, PipelineState.INIT, None, fr)
-        self.summary.init_modes.append(init.mode)
-        T = upd.nav.T_world_body
+            return StartupStep(fr, failure=f"initialisation failed: {e}")
         if window_frame:
-            rec = self.segment.records.pop()  # the keyframe's record is made anew below
-            assert rec.t_ns == t
-        self.tracker.apply(MapCorrection(T))
-        self._hint_T = None
-        return self._keyframe(t, upd, fr)
+            rec = segment.records.pop()  # the keyframe's record is made anew
+            assert rec.t_ns == init.t_ns
+        return StartupStep(fr, upd.nav.T_world_body, upd, init.mode)

@@ -11,7 +11,7 @@ import numpy as np
 
 from eurocslam.backend.types import ImuCheck
 from eurocslam.frontend.stream import ExtractionCost
-from eurocslam.pipeline.places import PlaceEvent
+from eurocslam.pipeline.places import PlaceEvent, PlaceKind
 
 
 def cpu_seconds() -> float:
@@ -33,6 +33,14 @@ def _finite(x: float) -> float | None:
 IMU_BETWEEN = "imu_between"  # not tracked (frontend.track_every): the IMU's pose
 VO_BETWEEN = "vo_between"  # the same in a dynamic start's VO window: extrapolated VO
 TRACK_PATHS = ("projection", "projection_wide", "descriptor", "lost", IMU_BETWEEN, VO_BETWEEN)
+
+
+# summary.json `places`: the events by kind
+_PLACE_LISTS = (
+    ("loops", PlaceKind.LOOP),
+    ("relocalizations", PlaceKind.RELOCALIZATION),
+    ("merges", PlaceKind.MERGE),
+)
 
 
 @dataclass
@@ -127,11 +135,11 @@ class RunSummary:
     def _place_lines(self) -> list[str]:
         if not self.place_db:
             return []
-        loops = [e for e in self.places if e.kind == "loop"]
+        loops = [e for e in self.places if e.kind == PlaceKind.LOOP]
         moved = [e for e in loops if e.correction_m > 0 or e.correction_deg > 0]
         refused = [e for e in loops if e.refused]
-        n_reloc = sum(1 for e in self.places if e.kind == "relocalization")
-        n_merge = sum(1 for e in self.places if e.kind == "merge")
+        n_reloc = sum(1 for e in self.places if e.kind == PlaceKind.RELOCALIZATION)
+        n_merge = sum(1 for e in self.places if e.kind == PlaceKind.MERGE)
         d = self.place_db
         gate = f", {len(refused)} refused by the gate" if refused else ""
         return [
@@ -195,9 +203,10 @@ class RunSummary:
             ],
             "state_frames": self.state_frames,
             "places": {
-                "loops": [e.to_dict() for e in self.places if e.kind == "loop"],
-                "relocalizations": [e.to_dict() for e in self.places if e.kind == "relocalization"],
-                "merges": [e.to_dict() for e in self.places if e.kind == "merge"],
+                **{
+                    name: [e.to_dict() for e in self.places if e.kind == kind]
+                    for name, kind in _PLACE_LISTS
+                },
                 "database": {k: round(v, 3) for k, v in self.place_db.items()},
             },
             "prior_map": self.prior_map,
