@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from eurocslam.config import RunConfig, resolve_mode
-from eurocslam.dataset.types import SequenceSource, has_imu
+from eurocslam.config import RunConfig
+from eurocslam.dataset.types import SequenceSource
 from eurocslam.errors import OutputError
 from eurocslam.io.ply import write_ply
 from eurocslam.io.sink import Sink
@@ -114,7 +114,6 @@ def run_slam(
     from eurocslam.timebase import resolve_time
 
     opt = options or RunOptions()
-    cfg = resolve_mode(cfg or RunConfig(), has_imu(source), source.name)
     out_dir = Path(out_dir)
     if opt.compression not in COMPRESSIONS:
         raise OutputError(f"compression {opt.compression!r}: one of {', '.join(COMPRESSIONS)}")
@@ -129,6 +128,7 @@ def run_slam(
         raise OutputError(f"{source.name}: no stereo frames in the selected time range")
     prior = PriorMap.load(opt.map) if opt.map is not None else None
     pipeline = SlamPipeline(source, cfg, prior_map=prior)
+    cfg = pipeline.cfg  # the mode resolved against the source
 
     staged = StagedOutputs(out_dir, OUTPUT_NAMES)
     started = False  # a frame has been processed (and written)

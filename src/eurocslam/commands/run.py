@@ -123,8 +123,8 @@ def run(args: argparse.Namespace) -> int:
     import dataclasses
 
     from eurocslam.commands._args import source_options
-    from eurocslam.config import VISUAL_ONLY, load_config, resolve_mode
-    from eurocslam.dataset import has_imu, open_sequence
+    from eurocslam.config import VISUAL_ONLY, load_config
+    from eurocslam.dataset import open_sequence
 
     _check_live_args(args)
     if args.localize_only and not args.map:
@@ -135,7 +135,6 @@ def run(args: argparse.Namespace) -> int:
     if args.no_imu:
         cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
     source = open_sequence(args.sequence, **source_options(args))
-    cfg = resolve_mode(cfg, has_imu(source), source.name)
     live_sink = _start_live(args) if args.live else None
     try:
         return _run(args, cfg, source, live_sink)
