@@ -58,11 +58,23 @@ class FrontendResult:
 
 @dataclass(frozen=True)
 class MapCorrection:
-    """What the backend hands back to the tracker after a keyframe (or a rejected frame): the
-    pose of the last tracked frame, optionally a rigid motion of the whole local map first
-    (`T_new_old`: old world -> corrected world), then landmark positions by id."""
+    """What the backend hands back to the tracker after a keyframe (or a rejected frame), in
+    one record: the pose of the last tracked frame, optionally a rigid motion of the whole local
+    map first (`T_new_old`: old world -> corrected world), then landmark positions by id."""
 
     T_world_body: F64
     T_new_old: F64 | None = None
     landmark_ids: NDArray[np.int64] | None = None
     landmark_xyz: F64 | None = None
+
+    def then_move(self, T_new_old: F64, T_world_body: F64) -> MapCorrection:
+        """This correction followed by a rigid move of everything (`T_new_old`: a loop
+        closure), the last frame's pose ending at `T_world_body`."""
+        first = self.T_new_old
+        xyz = self.landmark_xyz
+        return MapCorrection(
+            T_world_body,
+            T_new_old if first is None else T_new_old @ first,
+            self.landmark_ids,
+            None if xyz is None else xyz @ T_new_old[:3, :3].T + T_new_old[:3, 3],
+        )

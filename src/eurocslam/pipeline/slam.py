@@ -295,8 +295,10 @@ class SlamPipeline:
         assert st.mode is not None and st.fr is not None
         self.summary.init_modes.append(st.mode.value)
         nav = st.started.nav
-        self.tracker.apply(MapCorrection(nav.T_world_body))
-        return self._keyframe(nav.t_ns, st.started, st.fr)
+        # the tracker's map, still in the VO window's frame after a dynamic start, moves into
+        # the world with the first keyframe
+        correction = MapCorrection(nav.T_world_body, T_new_old=st.T_world_vo)
+        return self._keyframe(nav.t_ns, st.started, st.fr, correction)
 
     # ---- TRACKING / LOST ------------------------------------------------------------------------
     def _step_tracking(self, ff: FrameFeatures) -> FrameOutput:
@@ -421,21 +423,24 @@ class SlamPipeline:
         if not verdict.ok:
             return self._fail(t, verdict.reason, pred.T_world_body, fr)
         b = self.cfg.backend
-        if b.correct_whole_map:
-            # the landmarks the smoother does not hold move rigidly with the keyframe's
-            # correction, so the tracker's map stays in one frame (mixing corrected and
-            # uncorrected points would bias its pose estimates between keyframes)
-            self.tracker.apply(MapCorrection(T, T_new_old=T @ inv_T(fr.T_world_body)))
-        if b.correct_landmarks:
-            self.tracker.apply(MapCorrection(T, None, upd.landmark_ids, upd.landmark_xyz))
-        else:
-            self.tracker.apply(MapCorrection(T))
-        return self._keyframe(t, upd, fr)
+        # the landmarks the smoother does not hold move rigidly with the keyframe's correction,
+        # so the tracker's map stays in one frame (mixing corrected and uncorrected points would
+        # bias its pose estimates between keyframes); those it holds take its positions
+        correction = MapCorrection(
+            T,
+            T @ inv_T(fr.T_world_body) if b.correct_whole_map else None,
+            upd.landmark_ids if b.correct_landmarks else None,
+            upd.landmark_xyz if b.correct_landmarks else None,
+        )
+        return self._keyframe(t, upd, fr, correction)
 
-    def _keyframe(self, t: int, upd: KeyframeUpdate, fr: FrontendResult) -> FrameOutput:
+    def _keyframe(
+        self, t: int, upd: KeyframeUpdate, fr: FrontendResult, correction: MapCorrection
+    ) -> FrameOutput:
         """A keyframe in the smoother: place recognition sees it (and may move the estimate),
-        then the segment records it."""
-        upd = self._place_keyframe(t, upd, fr)
+        the tracker takes the keyframe's correction (one record), the segment records it."""
+        upd, correction = self._place_keyframe(t, upd, fr, correction)
+        self.tracker.apply(correction)
         seg = self.segment
         T = upd.nav.T_world_body
         seg.kf_T_chain[upd.index] = T
@@ -445,10 +450,13 @@ class SlamPipeline:
         self._tracked_offset = None  # the predictions start from this keyframe's state
         return self._keyframe_out(t, upd, fr)
 
-    def _place_keyframe(self, t: int, upd: KeyframeUpdate, fr: FrontendResult) -> KeyframeUpdate:
-        """Merge (a segment after a reset) or loop closure at this keyframe, then file it."""
+    def _place_keyframe(
+        self, t: int, upd: KeyframeUpdate, fr: FrontendResult, correction: MapCorrection
+    ) -> tuple[KeyframeUpdate, MapCorrection]:
+        """Merge (a segment after a reset) or loop closure at this keyframe, then file it; a
+        loop closed moves the keyframe's correction too."""
         if self.places is None:
-            return upd
+            return upd, correction
         p, seg = self.places, self.segment.index
         for k, T in upd.window:
             p.update_pose(seg, k, T)
@@ -461,16 +469,18 @@ class SlamPipeline:
             loop = p.loop(view, seg, upd.nav.T_world_body, self.est.pose_covariance)
             self._events += loop.events
             if loop.loop is not None:
-                upd = self._close_loop(loop.loop, upd)
+                upd, correction = self._close_loop(loop.loop, upd, correction)
         # the estimator's uncertainty, sampled for the loop gate (`PlaceStage.loop`)
         cov = None
         if (t - self._cov_sampled_t) * 1e-9 >= self.cfg.places.loop_covariance_every_s:
             cov = self.est.pose_covariance()
             self._cov_sampled_t = t
         p.file(view, seg, upd.index, upd.nav.T_world_body, cov)
-        return upd
+        return upd, correction
 
-    def _close_loop(self, fix: LoopFix, upd: KeyframeUpdate) -> KeyframeUpdate:
+    def _close_loop(
+        self, fix: LoopFix, upd: KeyframeUpdate, correction: MapCorrection
+    ) -> tuple[KeyframeUpdate, MapCorrection]:
         """Move the online estimate onto the map it has come back to (`fix.D`): the smoother
         starts again from the moved state, the tracker's map moves with it, and the segment's
         final batch gets the loop edge when the recognised keyframe is in this segment."""
@@ -486,9 +496,9 @@ class SlamPipeline:
         try:
             moved = self.est.reanchor(D, edge, fix.cov_after)
         except EstimatorFailure:
-            return upd  # the estimate stays where it was; map reuse may still close the loop
-        self.tracker.apply(MapCorrection(moved.nav.T_world_body, T_new_old=D))
-        return moved
+            # the estimate stays where it was; map reuse may still close the loop
+            return upd, correction
+        return moved, correction.then_move(D, moved.nav.T_world_body)
 
     def _map_points(self, segment: int, ids: np.ndarray) -> F64:
         """The map's positions (N, 3) of landmarks by id in a segment's world (NaN: unknown):

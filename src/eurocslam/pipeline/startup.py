@@ -37,7 +37,7 @@ from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import ImuData
 from eurocslam.frontend.extraction import FrameFeatures
 from eurocslam.frontend.tracker import StereoTracker
-from eurocslam.frontend.types import FrontendResult, MapCorrection
+from eurocslam.frontend.types import FrontendResult
 from eurocslam.geometry import F64, make_T
 from eurocslam.pipeline.segments import FrameRecord, Segment, extrapolate_last, interpolate_between
 from eurocslam.timebase import ns_to_s
@@ -57,6 +57,9 @@ class StartupStep:
     started: KeyframeUpdate | None = None
     mode: InitMode | None = None
     failure: str = ""
+    # a dynamic start: the gravity-aligned world <- the VO window's frame, which the tracker's
+    # map is still in
+    T_world_vo: F64 | None = None
 
 
 class Startup:
@@ -186,15 +189,13 @@ class Startup:
     ) -> StartupStep:
         R = init.R_world_vo if init.R_world_vo is not None else np.eye(3)
         C = make_T(R, np.zeros(3))
-        # re-express the window and the tracker's map in the gravity-aligned world
+        # re-express the window in the gravity-aligned world (the tracker's map: the caller)
         for rec in segment.records:
             rec.T_chain = C @ rec.T_chain
-        assert fr.T_world_body is not None
-        tracker.apply(MapCorrection(C @ fr.T_world_body, T_new_old=C))
         t_last, T_last, v_last = init.window[-1]
         last = InitialState(t_last, T_last, v_last, init.bg, init.ba, InitMode.DYNAMIC)
         self._window = []
-        return self._start_estimator(last, fr, est, segment, window_frame=True)
+        return self._start_estimator(last, fr, est, segment, T_world_vo=C)
 
     def _start_estimator(
         self,
@@ -202,13 +203,13 @@ class Startup:
         fr: FrontendResult,
         est: KeyframeEstimator,
         segment: Segment,
-        window_frame: bool = False,
+        T_world_vo: F64 | None = None,
     ) -> StartupStep:
         try:
             upd = est.initialize(init, fr.landmark_ids, fr.stereo_uv, fr.stereo_sigma)
         except EstimatorFailure as e:
             return StartupStep(fr, failure=f"initialisation failed: {e}")
-        if window_frame:
+        if T_world_vo is not None:
             rec = segment.records.pop()  # the keyframe's record is made anew
             assert rec.t_ns == init.t_ns
-        return StartupStep(fr, upd.nav.T_world_body, upd, init.mode)
+        return StartupStep(fr, upd.nav.T_world_body, upd, init.mode, T_world_vo=T_world_vo)
