@@ -48,6 +48,7 @@ from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingStat
 from eurocslam.geometry import F64, inv_T
 from eurocslam.maps.store import SavedMap
 from eurocslam.memory import peak_rss_mb, usable_cores
+from eurocslam.pipeline.active import ActiveSegment
 from eurocslam.pipeline.frames import WorldFrames
 from eurocslam.pipeline.places import LoopFix, PlaceEvent, PlaceStage, yaw_and_translation
 from eurocslam.pipeline.records import (
@@ -57,7 +58,7 @@ from eurocslam.pipeline.records import (
     PipelineState,
     RunResult,
 )
-from eurocslam.pipeline.segments import FrameRecord, Segment, assemble, extrapolate_last
+from eurocslam.pipeline.segments import Segment, assemble, extrapolate_last
 from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
 from eurocslam.pipeline.summary import IMU_BETWEEN, VO_BETWEEN, RunSummary, cpu_seconds
@@ -123,14 +124,11 @@ class SlamPipeline:
         """A new segment, started by a new `Startup` from `T_hint` (None: the origin)."""
         self.segments.append(Segment(len(self.segments)))
         self.frames.new_segment()
-        self.startup = Startup(self.cfg, self.imu, self.source.rig, T_hint)
-        self.est = KeyframeEstimator(self.source.rig.imu, self.stereo, self.imu, self.cfg)
-        self._nav: NavEstimate | None = None  # the latest keyframe's smoothed state
-        self._kf_index = -1  # the latest keyframe's index in the segment
-        self._n_active = 0  # landmarks in the smoother
-        self._kf_path: list[tuple[int, F64]] = []  # keyframes: time, latest smoothed pose
-        self._tracked_offset: F64 | None = None  # last tracked pose @ inv(its prediction)
-        self._cov_sampled_t = -(1 << 62)  # the last keyframe whose covariance was sampled
+        self.live = ActiveSegment(
+            self.segments[-1],
+            Startup(self.cfg, self.imu, self.source.rig, T_hint),
+            KeyframeEstimator(self.source.rig.imu, self.stereo, self.imu, self.cfg),
+        )
 
     def _file_prior_map(self, prior: PriorMap) -> None:
         """The earlier map as segment 0 (no frames): its keyframes in the place database, its
@@ -174,10 +172,10 @@ class SlamPipeline:
         """Final batch over the segment's graph; the segment keeps the solution (and place
         recognition the keyframes' final poses)."""
         seg = self.segment
-        if self._nav is None or not seg.records:
+        if self.live.nav is None or not seg.records:
             return
         t0 = time.perf_counter()
-        seg.solution = self.est.finish(seg.frame_refs())
+        seg.solution = self.live.est.finish(seg.frame_refs())
         if seg.solution.imu_check is not None:
             self.summary.imu_checks.append(seg.solution.imu_check)
         self.summary.add_time("final_batch", (time.perf_counter() - t0) * 1e3)
@@ -272,23 +270,23 @@ class SlamPipeline:
         frame is its pose (across an IMU dropout, the estimator's constant velocity); in a
         dynamic start's VO window, the motion between its last two tracked frames."""
         if self.state == PipelineState.INIT:
-            T_vo = self.startup.between(t)
+            T_vo = self.live.startup.between(t)
             if T_vo is not None:
-                self.segment.records.append(FrameRecord(t, T_vo, -1))
+                self.live.record(t, T_vo, -1)
             self.summary.count_path(VO_BETWEEN)
             return self._emit(t, PipelineState.INIT, T_vo, None, left_out=True)
-        T = self.est.predict(t).T_world_body
-        T = T if self._tracked_offset is None else self._tracked_offset @ T
-        self.segment.records.append(FrameRecord(t, T, self._kf_index))
+        T = self.live.est.predict(t).T_world_body
+        T = T if self.live.tracked_offset is None else self.live.tracked_offset @ T
+        self.live.record(t, T)
         self.summary.count_path(IMU_BETWEEN)
-        return self._emit(t, PipelineState.TRACKING, T, None, self._nav, left_out=True)
+        return self._emit(t, PipelineState.TRACKING, T, None, self.live.nav, left_out=True)
 
     # ---- INIT -----------------------------------------------------------------------------------
     def _step_init(self, ff: FrameFeatures) -> FrameOutput:
         t = ff.t_ns
-        st = self.startup.step(ff, self.tracker, self.est, self.segment)
+        st = self.live.startup.step(ff, self.tracker, self.live.est, self.segment)
         if st.failure:
-            self._reset(t, st.failure, self.startup.hint)
+            self._reset(t, st.failure, self.live.startup.hint)
             return self._emit(t, PipelineState.INIT, None, st.fr)
         if st.started is None:
             return self._emit(t, PipelineState.INIT, st.T_world_body, st.fr)
@@ -302,10 +300,10 @@ class SlamPipeline:
 
     # ---- TRACKING / LOST ------------------------------------------------------------------------
     def _step_tracking(self, ff: FrameFeatures) -> FrameOutput:
-        nav = self._nav
+        nav = self.live.nav
         assert nav is not None
         t = ff.t_ns
-        pred = self.est.predict(t)
+        pred = self.live.est.predict(t)
         if not self.cfg.inertial:
             # visual-only: constant velocity from the last two poses (the tracker's own model)
             seg = self.segment.index
@@ -348,10 +346,10 @@ class SlamPipeline:
             )
             if need_kf:
                 return self._add_keyframe(t, fr, pred, T if blind else None)
-            self.segment.records.append(FrameRecord(t, T, self._kf_index))
+            self.live.record(t, T)
             self.state = PipelineState.TRACKING
             self._last_good_t, self._last_good_T = t, T
-            self._tracked_offset = T @ inv_T(pred.T_world_body)
+            self.live.tracked_offset = T @ inv_T(pred.T_world_body)
             return self._emit(t, PipelineState.TRACKING, T, fr, nav)
         if self.places is not None and ff.problem is None and not blind:
             out = self._relocalize(ff, pred)
@@ -362,10 +360,10 @@ class SlamPipeline:
         verdict = self._lost_verdict(t)
         T = pred.T_world_body
         finite = bool(np.all(np.isfinite(T)))
-        bridged = not self.cfg.inertial or self.est.imu_ok_since_keyframe()
+        bridged = not self.cfg.inertial or self.live.est.imu_ok_since_keyframe()
         if verdict.ok and finite and (bridged or self.places is None):
             self.state = PipelineState.LOST
-            self.segment.records.append(FrameRecord(t, T, self._kf_index))
+            self.live.record(t, T)
             return self._emit(t, PipelineState.LOST, T, fr, nav)
         lost_s = (t - (self._last_good_t or t)) * 1e-9
         if self.places is not None and finite and lost_s < self.cfg.places.relocalize_max_s:
@@ -382,7 +380,7 @@ class SlamPipeline:
 
     def _lost_verdict(self, t: int) -> Verdict:
         lost_s = (t - (self._last_good_t or t)) * 1e-9
-        return self.health.lost(lost_s, self.est.imu_ok_since_keyframe())
+        return self.health.lost(lost_s, self.live.est.imu_ok_since_keyframe())
 
     def _relocalize(self, ff: FrameFeatures, pred: NavEstimate) -> FrameOutput | None:
         """A lost frame found in the map by appearance: a new local map there, a keyframe tied
@@ -409,13 +407,13 @@ class SlamPipeline:
         assert fr.T_world_body is not None
         t0 = time.perf_counter()
         try:
-            upd = self.est.add_keyframe(
+            upd = self.live.est.add_keyframe(
                 t, fr.landmark_ids, fr.stereo_uv, fr.T_world_body, fr.stereo_sigma, pose_prior
             )
         except EstimatorFailure as e:
             return self._fail(t, str(e), pred.T_world_body, fr)
         self.summary.add_time("backend", (time.perf_counter() - t0) * 1e3)
-        self._kf_index = upd.index
+        self.live.kf_index = upd.index
         T = upd.nav.T_world_body
         verdict = self.health.state(upd.nav)
         if verdict.ok and pose_prior is None:
@@ -444,10 +442,10 @@ class SlamPipeline:
         seg = self.segment
         T = upd.nav.T_world_body
         seg.kf_T_chain[upd.index] = T
-        seg.records.append(FrameRecord(t, T, upd.index))
+        self.live.record(t, T, upd.index)
         self.state = PipelineState.TRACKING
         self._last_good_t, self._last_good_T = t, T
-        self._tracked_offset = None  # the predictions start from this keyframe's state
+        self.live.tracked_offset = None  # the predictions start from this keyframe's state
         return self._keyframe_out(t, upd, fr)
 
     def _place_keyframe(
@@ -466,15 +464,14 @@ class SlamPipeline:
         if merged.merge is not None:
             self.frames.merge(seg, *merged.merge)
         else:
-            loop = p.loop(view, seg, upd.nav.T_world_body, self.est.pose_covariance)
+            loop = p.loop(view, seg, upd.nav.T_world_body, self.live.est.pose_covariance)
             self._events += loop.events
             if loop.loop is not None:
                 upd, correction = self._close_loop(loop.loop, upd, correction)
         # the estimator's uncertainty, sampled for the loop gate (`PlaceStage.loop`)
         cov = None
-        if (t - self._cov_sampled_t) * 1e-9 >= self.cfg.places.loop_covariance_every_s:
-            cov = self.est.pose_covariance()
-            self._cov_sampled_t = t
+        if self.live.covariance_due(t, self.cfg.places.loop_covariance_every_s):
+            cov = self.live.est.pose_covariance()
         p.file(view, seg, upd.index, upd.nav.T_world_body, cov)
         return upd, correction
 
@@ -494,7 +491,7 @@ class SlamPipeline:
         if self.cfg.inertial:  # roll and pitch are observed: the loop moves yaw and position
             D = yaw_and_translation(D, upd.nav.T_world_body[:3, 3])
         try:
-            moved = self.est.reanchor(D, edge, fix.cov_after)
+            moved = self.live.est.reanchor(D, edge, fix.cov_after)
         except EstimatorFailure:
             # the estimate stays where it was; map reuse may still close the loop
             return upd, correction
@@ -505,7 +502,7 @@ class SlamPipeline:
         the smoother's latest estimates in the running segment, the final batch's in an
         ended one."""
         if segment == self.segment.index and self.segment.solution is None:
-            return self.est.landmark_positions(ids)
+            return self.live.est.landmark_positions(ids)
         out = np.full((len(ids), 3), np.nan)
         sol = self.segments[segment].solution
         if sol is not None and len(sol.landmark_ids):
@@ -537,24 +534,14 @@ class SlamPipeline:
         T_start = T_hint if ok_hint else None
         T_out = T_start if guess else None
         if T_out is not None:
-            self.segment.records.append(FrameRecord(t, T_out, max(self._kf_index, 0)))
+            self.live.record(t, T_out, max(self.live.kf_index, 0))
         self._reset(t, reason, T_start)
         return self._emit(t, PipelineState.LOST, T_out, fr, segment=seg_index, reset_reason=reason)
 
     # ---- outputs --------------------------------------------------------------------------------
     def _keyframe_out(self, t: int, upd: KeyframeUpdate, fr: FrontendResult) -> FrameOutput:
         """A keyframe's output: the smoother's state, path and landmarks after the update."""
-        self._nav = upd.nav
-        self._kf_index = upd.index
-        self._n_active = len(upd.landmark_ids)
-        self._kf_path.append((t, upd.nav.T_world_body))
-        for k, T in upd.window:
-            if 0 <= k < len(self._kf_path):
-                self._kf_path[k] = (self._kf_path[k][0], T)
-        path = KeyframePath(
-            np.array([p[0] for p in self._kf_path], dtype=np.int64),
-            np.array([p[1] for p in self._kf_path]),
-        )
+        path = self.live.keyframe(t, upd)
         return self._emit(
             t, PipelineState.TRACKING, upd.nav.T_world_body, fr, upd.nav, path, upd.landmark_xyz
         )
@@ -596,9 +583,9 @@ class SlamPipeline:
             fr,
             nav,
             reset_reason,
-            n_keyframes=self._kf_index + 1 if segment is None else 0,
+            n_keyframes=self.live.kf_index + 1 if segment is None else 0,
             n_resets=len(self.summary.resets),
-            n_active_landmarks=self._n_active if segment is None else 0,
+            n_active_landmarks=self.live.n_active if segment is None else 0,
             keyframe_path=path,
             landmarks=landmarks,
             frame=self.frames.frame_of(seg),

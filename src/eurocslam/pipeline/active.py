@@ -1,0 +1,61 @@
+"""The running segment: what the pipeline keeps about the segment it is extending.
+
+Its frames (`Segment`), how it starts (`Startup`), its estimator, and the latest keyframe: the
+smoothed state the predictions start from, the keyframe index frames hang from, the keyframes'
+latest smoothed poses (the keyframe path of the outputs). A reset ends it; the next segment gets
+a new one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from eurocslam.backend.estimator import KeyframeEstimator
+from eurocslam.backend.types import KeyframeUpdate, NavEstimate
+from eurocslam.geometry import F64
+from eurocslam.pipeline.records import KeyframePath
+from eurocslam.pipeline.segments import FrameRecord, Segment
+from eurocslam.pipeline.startup import Startup
+from eurocslam.timebase import ns_to_s
+
+
+@dataclass
+class ActiveSegment:
+    segment: Segment
+    startup: Startup
+    est: KeyframeEstimator
+    nav: NavEstimate | None = None  # the latest keyframe's smoothed state
+    kf_index: int = -1  # the latest keyframe's index in the segment
+    n_active: int = 0  # landmarks in the smoother
+    tracked_offset: F64 | None = None  # last tracked pose @ inv(its prediction)
+    cov_sampled_t: int = -(1 << 62)  # the last keyframe whose covariance was sampled
+    kf_path: list[tuple[int, F64]] = field(default_factory=list)  # time, latest smoothed pose
+
+    def record(self, t_ns: int, T_world_body: F64, ref_kf: int | None = None) -> None:
+        """A frame of the segment, hanging from the latest keyframe (or `ref_kf`)."""
+        ref = self.kf_index if ref_kf is None else ref_kf
+        self.segment.records.append(FrameRecord(t_ns, T_world_body, ref))
+
+    def covariance_due(self, t_ns: int, every_s: float) -> bool:
+        """Time to sample the estimator's covariance again (and note that it is sampled)."""
+        if ns_to_s(t_ns - self.cov_sampled_t) < every_s:
+            return False
+        self.cov_sampled_t = t_ns
+        return True
+
+    def keyframe(self, t_ns: int, upd: KeyframeUpdate) -> KeyframePath:
+        """A keyframe's update taken: the latest state, and the keyframe path with the smoother's
+        window refreshed."""
+        self.nav = upd.nav
+        self.kf_index = upd.index
+        self.n_active = len(upd.landmark_ids)
+        self.kf_path.append((t_ns, upd.nav.T_world_body))
+        for k, T in upd.window:
+            if 0 <= k < len(self.kf_path):
+                self.kf_path[k] = (self.kf_path[k][0], T)
+        return KeyframePath(
+            np.array([p[0] for p in self.kf_path], dtype=np.int64),
+            np.array([p[1] for p in self.kf_path]),
+        )
