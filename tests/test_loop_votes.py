@@ -13,7 +13,9 @@ from gtsam import Pose3
 from eurocslam.config import PlacesConfig
 from eurocslam.geometry import F64, make_T, se3_log, so3_exp, so3_log
 from eurocslam.pipeline.frames import WorldFrames
-from eurocslam.pipeline.places import PlaceEvent, PlaceStage, loop_gate, yaw_and_translation
+from eurocslam.pipeline.places import PlaceStage
+from eurocslam.pipeline.records import PlaceEvent
+from eurocslam.places.loop_gate import loop_gate, yaw_and_translation
 from eurocslam.places.recognizer import PlaceMatch, PlaceView
 from eurocslam.places.vocabulary import BowVector
 

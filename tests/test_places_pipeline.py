@@ -12,8 +12,7 @@ import pytest
 from eurocslam.config import config_from_dict
 from eurocslam.dataset import open_sequence
 from eurocslam.eval.align import align
-from eurocslam.pipeline.places import PlaceEvent, PlaceKind
-from eurocslam.pipeline.records import FrameOutput, PipelineState, RunResult
+from eurocslam.pipeline.records import FrameOutput, PipelineState, PlaceEvent, PlaceKind, RunResult
 from eurocslam.pipeline.slam import SlamPipeline
 
 FLIGHT_S = 30.0

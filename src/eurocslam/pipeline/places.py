@@ -24,7 +24,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from enum import Enum
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,65 +34,16 @@ from eurocslam.geometry import (
     F64,
     inv_T,
     make_T,
-    rot_z,
     se3_adjoint,
-    se3_log,
     so3_log,
-    yaw_of,
 )
 from eurocslam.maps.store import MapKeyframe
 from eurocslam.pipeline.frames import FrameView
+from eurocslam.pipeline.records import PlaceEvent, PlaceKind
+from eurocslam.places.loop_gate import loop_gate, psd
 from eurocslam.places.recognizer import CandidatePoints, PlaceMatch, PlaceRecognizer, PlaceView
 from eurocslam.places.vocabulary import BowVector, Vocabulary, default_vocabulary
 from eurocslam.timebase import s_to_ns
-
-
-class PlaceKind(str, Enum):
-    LOOP = "loop"
-    RELOCALIZATION = "relocalization"
-    MERGE = "merge"
-
-
-@dataclass(frozen=True)
-class PlaceEvent:
-    """A loop closed, a relocalization or a merge, for the summary and the MCAP."""
-
-    kind: PlaceKind
-    t_ns: int
-    segment: int
-    query_key: int  # the keyframe that asked (-1: a lost frame)
-    match_key: int  # the keyframe it recognised
-    n_inliers: int
-    p_query: F64  # the query's position and ...
-    p_match: F64  # ... the matched keyframe's, in the world frame of the outputs
-    correction_m: float = 0.0  # how far the estimate was moved (loop, merge)
-    correction_deg: float = 0.0
-    # a loop large enough to correct: its gate statistic (`loop_gate`), and whether the gate
-    # refused it (then the drift it measured is in `drift_m`/`drift_deg`, nothing moved)
-    gate_chi2: float = float("nan")
-    refused: bool = False
-    drift_m: float = 0.0
-    drift_deg: float = 0.0
-
-    def to_dict(self) -> dict[str, object]:
-        d: dict[str, object] = {
-            "kind": self.kind.value,
-            "t_ns": self.t_ns,
-            "segment": self.segment,
-            "query_keyframe": self.query_key,
-            "match_keyframe": self.match_key,
-            "inliers": self.n_inliers,
-            "correction_m": round(self.correction_m, 4),
-            "correction_deg": round(self.correction_deg, 3),
-        }
-        if self.gate_chi2 == self.gate_chi2:  # not NaN: the gate was asked
-            d.update(
-                gate_chi2=round(self.gate_chi2, 2),
-                refused=self.refused,
-                drift_m=round(self.drift_m, 4),
-                drift_deg=round(self.drift_deg, 3),
-            )
-        return d
 
 
 @dataclass
@@ -132,39 +82,6 @@ class PlaceAnswer:
     loop: LoopFix | None = None
     merge: tuple[int, F64] | None = None
     T_seg_query: F64 | None = None
-
-
-def loop_gate(D: F64, cov_query: F64, cov_cand: F64, cov_match: F64) -> float:
-    """The chi-square (6 DoF) of a loop's drift `D` against what the estimate allows.
-
-    With the query's and the recognised keyframe's estimated poses perturbed on the left by
-    xi_q and xi_c (world frame), the loop measures D ~ exp(xi_q - xi_c) plus the match's own
-    error. The drift accumulated between the two keyframes is the part of the query's
-    covariance the recognised keyframe did not already have (`cov_query - cov_cand`: both come
-    from the same estimator, whose uncertainty only grows in the directions nothing observes:
-    with an IMU, yaw and position; roll and pitch stay as small as gravity makes them), and the
-    match adds its own (`cov_match`). A correction of degrees in roll or pitch, or of decimetres
-    where the estimate is sure to centimetres, gives a large value."""
-    S = _psd(cov_query - cov_cand) + cov_match
-    xi = se3_log(D)
-    try:
-        return float(xi @ np.linalg.solve(S, xi))
-    except np.linalg.LinAlgError:
-        return float("inf")
-
-
-def _psd(M: F64) -> F64:
-    """The nearest positive semi-definite matrix (negative eigenvalues set to 0)."""
-    w, V = np.linalg.eigh(0.5 * (M + M.T))
-    return np.asarray((V * np.maximum(w, 0.0)) @ V.T, dtype=np.float64)
-
-
-def yaw_and_translation(D: F64, p: F64) -> F64:
-    """The part of a world-frame correction `D` an IMU leaves open: the rotation about world z
-    (gravity) that D gives, and the translation that takes the point `p` where D takes it
-    (roll and pitch are observed: a loop does not move them)."""
-    R = rot_z(yaw_of(D[:3, :3]))
-    return make_T(R, D[:3, :3] @ p + D[:3, 3] - R @ p)
 
 
 def _size(D: F64) -> tuple[float, float]:
@@ -407,7 +324,7 @@ class PlaceStage:
             m,
             D,
             inv_T(self._in_frame(m.key)) @ T_frame_query,
-            _psd(cov_cand) + cov_match,
+            psd(cov_cand) + cov_match,
             cand.segment,
             cand.index,
         )

@@ -14,10 +14,57 @@ from eurocslam.backend.types import NavEstimate
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.types import FrontendResult
 from eurocslam.geometry import F64
-from eurocslam.pipeline.places import PlaceEvent
 
 if TYPE_CHECKING:
     from eurocslam.pipeline.summary import RunSummary
+
+
+class PlaceKind(str, Enum):
+    LOOP = "loop"
+    RELOCALIZATION = "relocalization"
+    MERGE = "merge"
+
+
+@dataclass(frozen=True)
+class PlaceEvent:
+    """A loop closed, a relocalization or a merge, for the summary and the MCAP."""
+
+    kind: PlaceKind
+    t_ns: int
+    segment: int
+    query_key: int  # the keyframe that asked (-1: a lost frame)
+    match_key: int  # the keyframe it recognised
+    n_inliers: int
+    p_query: F64  # the query's position and ...
+    p_match: F64  # ... the matched keyframe's, in the world frame of the outputs
+    correction_m: float = 0.0  # how far the estimate was moved (loop, merge)
+    correction_deg: float = 0.0
+    # a loop large enough to correct: its gate statistic (`loop_gate`), and whether the gate
+    # refused it (then the drift it measured is in `drift_m`/`drift_deg`, nothing moved)
+    gate_chi2: float = float("nan")
+    refused: bool = False
+    drift_m: float = 0.0
+    drift_deg: float = 0.0
+
+    def to_dict(self) -> dict[str, object]:
+        d: dict[str, object] = {
+            "kind": self.kind.value,
+            "t_ns": self.t_ns,
+            "segment": self.segment,
+            "query_keyframe": self.query_key,
+            "match_keyframe": self.match_key,
+            "inliers": self.n_inliers,
+            "correction_m": round(self.correction_m, 4),
+            "correction_deg": round(self.correction_deg, 3),
+        }
+        if self.gate_chi2 == self.gate_chi2:  # not NaN: the gate was asked
+            d.update(
+                gate_chi2=round(self.gate_chi2, 2),
+                refused=self.refused,
+                drift_m=round(self.drift_m, 4),
+                drift_deg=round(self.drift_deg, 3),
+            )
+        return d
 
 
 class PipelineState(str, Enum):

@@ -38,7 +38,8 @@ from eurocslam.maps.store import (
     session_record,
 )
 from eurocslam.pipeline.frames import FrameView
-from eurocslam.pipeline.places import PlaceEvent, PlaceKind, PlaceStage
+from eurocslam.pipeline.places import PlaceStage
+from eurocslam.pipeline.records import PlaceEvent, PlaceKind
 from eurocslam.timebase import ns_to_s
 
 MAP_SEGMENT = 0  # the segment an earlier map is filed as

@@ -50,18 +50,20 @@ from eurocslam.maps.store import SavedMap
 from eurocslam.memory import peak_rss_mb, usable_cores
 from eurocslam.pipeline.active import ActiveSegment
 from eurocslam.pipeline.frames import WorldFrames
-from eurocslam.pipeline.places import LoopFix, PlaceEvent, PlaceStage, yaw_and_translation
+from eurocslam.pipeline.places import LoopFix, PlaceStage
 from eurocslam.pipeline.records import (
     FrameObserver,
     FrameOutput,
     KeyframePath,
     PipelineState,
+    PlaceEvent,
     RunResult,
 )
 from eurocslam.pipeline.segments import Segment, assemble, extrapolate_last
 from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
 from eurocslam.pipeline.summary import IMU_BETWEEN, VO_BETWEEN, RunSummary, cpu_seconds
+from eurocslam.places.loop_gate import yaw_and_translation
 
 
 class SlamPipeline:

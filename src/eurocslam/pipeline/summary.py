@@ -11,7 +11,7 @@ import numpy as np
 
 from eurocslam.backend.types import ImuCheck
 from eurocslam.frontend.stream import ExtractionCost
-from eurocslam.pipeline.places import PlaceEvent, PlaceKind
+from eurocslam.pipeline.records import PlaceEvent, PlaceKind
 
 
 def cpu_seconds() -> float:

@@ -1,0 +1,51 @@
+"""The loop gate: is a loop's drift one the estimate could have accumulated?
+
+A loop recognised by appearance measures where the query keyframe is on the old map; the
+difference with the estimate is the drift `D` (a world-frame move, `T_measured @
+inv(T_estimated)`). An inlier count says how many points agree on it, not whether the pose they
+agree on is plausible: the gate asks the estimator. With the query's and the recognised
+keyframe's estimated poses perturbed on the left by xi_q and xi_c (world frame, [rotation,
+translation]), the loop measures D ~ exp(xi_q - xi_c) plus the match's own error, so log(D) is
+tested against the covariance of that difference (`loop_gate`). With an IMU, roll and pitch are
+observed and a loop moves only yaw and position (`yaw_and_translation`), as ORB-SLAM3 and
+VINS-Fusion correct 4 DoF.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from eurocslam.geometry import F64, make_T, rot_z, se3_log, yaw_of
+
+
+def loop_gate(D: F64, cov_query: F64, cov_cand: F64, cov_match: F64) -> float:
+    """The chi-square (6 DoF) of a loop's drift `D` against what the estimate allows.
+
+    With the query's and the recognised keyframe's estimated poses perturbed on the left by
+    xi_q and xi_c (world frame), the loop measures D ~ exp(xi_q - xi_c) plus the match's own
+    error. The drift accumulated between the two keyframes is the part of the query's
+    covariance the recognised keyframe did not already have (`cov_query - cov_cand`: both come
+    from the same estimator, whose uncertainty only grows in the directions nothing observes:
+    with an IMU, yaw and position; roll and pitch stay as small as gravity makes them), and the
+    match adds its own (`cov_match`). A correction of degrees in roll or pitch, or of decimetres
+    where the estimate is sure to centimetres, gives a large value."""
+    S = psd(cov_query - cov_cand) + cov_match
+    xi = se3_log(D)
+    try:
+        return float(xi @ np.linalg.solve(S, xi))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
+def psd(M: F64) -> F64:
+    """The nearest positive semi-definite matrix (negative eigenvalues set to 0)."""
+    w, V = np.linalg.eigh(0.5 * (M + M.T))
+    return np.asarray((V * np.maximum(w, 0.0)) @ V.T, dtype=np.float64)
+
+
+def yaw_and_translation(D: F64, p: F64) -> F64:
+    """The part of a world-frame correction `D` an IMU leaves open: the rotation about world z
+    (gravity) that D gives, and the translation that takes the point `p` where D takes it
+    (roll and pitch are observed: a loop does not move them)."""
+    R = rot_z(yaw_of(D[:3, :3]))
+    return make_T(R, D[:3, :3] @ p + D[:3, 3] - R @ p)
