@@ -111,13 +111,13 @@ def run(seq_path: Path, cfg: dict[str, object]) -> tuple[list[dict[str, Any]], d
     finally:
         place_stage.PlaceStage.loop = loop  # type: ignore[method-assign]
     ate = {}
-    for name, t, T in (
-        ("online", res.online_t_ns, res.online_T),
-        ("final", res.final_t_ns, res.final_T),
+    for name, t, P in (
+        ("online", res.online.t_ns, res.online.p),
+        ("final", res.final.t_ns, res.final.p),
     ):
         G = gt.p[np.clip(np.searchsorted(gt.t_ns, t), 0, len(gt) - 1)]
-        a = align("se3", G, T[:, :3, 3])
-        e = np.linalg.norm(G - (T[:, :3, 3] @ a.R.T + a.t), axis=1)
+        a = align("se3", G, P)
+        e = np.linalg.norm(G - (P @ a.R.T + a.t), axis=1)
         ate[name] = float(np.sqrt(np.mean(e**2)))
     return loops, ate
 

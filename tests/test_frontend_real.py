@@ -90,7 +90,7 @@ def test_static_visual_odometry_stays_put(v101_micro: Path) -> None:
     assert s.frames == 99 and s.frames_with_pose >= 95  # cam1 lacks the last 4 images
     assert s.state_frames.get("TRACKING", 0) >= 94
     assert len(s.timings_ms["backend"]) >= 5  # keyframes went through the local BA
-    for P in (res.online_T, res.final_T):
+    for P in (res.online.T_world_body(), res.final.T_world_body()):
         dev = np.linalg.norm(P[:, :3, 3] - P[0, :3, 3], axis=1)
         assert dev.max() < 0.01, f"static drone moved {dev.max() * 100:.2f} cm"
         rot = max(np.degrees(rotation_angle(P[0, :3, :3].T @ T[:3, :3])) for T in P)

@@ -59,10 +59,10 @@ def _vo_ate(seq_path: Path) -> tuple[float, object, float]:
     res = SlamPipeline(seq, RunConfig(mode="visual-only")).run()
     gt = seq.groundtruth
     assert gt is not None
-    idx = np.searchsorted(gt.t_ns, res.final_t_ns)
-    assert np.array_equal(gt.t_ns[idx], res.final_t_ns)  # rendered frames sit on GT stamps
+    idx = np.searchsorted(gt.t_ns, res.final.t_ns)
+    assert np.array_equal(gt.t_ns[idx], res.final.t_ns)  # rendered frames sit on GT stamps
     p_ref = gt.p[idx]
-    p_est = res.final_T[:, :3, 3]
+    p_est = res.final.p
     a = align("se3", p_ref, p_est)
     err = np.linalg.norm(p_est @ a.R.T + a.t - p_ref, axis=1)
     path = float(np.linalg.norm(np.diff(p_ref, axis=0), axis=1).sum())

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,12 +73,9 @@ def _gt(seq: object) -> Trajectory:
 
 
 def _ate(res: RunResult, gt: Trajectory, final: bool = True) -> float:
-    t, T, s = (
-        (res.final_t_ns, res.final_T, res.final_segment)
-        if final
-        else (res.online_t_ns, res.online_T, res.online_segment)
-    )
-    tr = Trajectory.from_poses(t, T, s if np.unique(s).size > 1 else None, "est")
+    tr = res.final if final else res.online
+    if not tr.has_segments:
+        tr = dataclasses.replace(tr, segment=None)
     return float(evaluate(gt, tr).ate_trans.rmse)
 
 
@@ -89,9 +87,9 @@ def test_static_start_on_real_micro(v101_micro: Path) -> None:
     s = res.summary
     assert s.init_modes == ["static"] and not s.resets
     assert s.frames_with_pose == s.frames >= 25
-    p = res.online_T[:, :3, 3]
+    p = res.online.p
     assert float(np.max(np.linalg.norm(p - p[0], axis=1))) < 0.02
-    pf = res.final_T[:, :3, 3]
+    pf = res.final.p
     assert float(np.max(np.linalg.norm(pf - pf[0], axis=1))) < 0.02
     assert len(res.landmarks) > 50
 
@@ -101,7 +99,7 @@ def test_static_whole_real_micro(v101_micro: Path) -> None:
     seq = open_sequence(v101_micro)
     res = SlamPipeline(seq, RunConfig()).run()
     assert res.summary.frames_with_pose == res.summary.frames
-    p = res.online_T[:, :3, 3]
+    p = res.online.p
     assert float(np.max(np.linalg.norm(p - p[0], axis=1))) < 0.02
 
 
@@ -114,7 +112,7 @@ def test_synthetic_flight_accuracy(synth_seq: Path) -> None:
     assert _ate(res, gt) < 0.01  # ~2 mm here
     assert _ate(res, gt, final=False) < 0.01
     # the final trajectory covers exactly the frames that got an online pose
-    assert np.array_equal(res.final_t_ns, res.online_t_ns)
+    assert np.array_equal(res.final.t_ns, res.online.t_ns)
 
 
 def test_faults_bridged(synth_seq: Path) -> None:
@@ -169,7 +167,7 @@ def test_tracking_one_frame_in_n(synth_seq: Path, every: int) -> None:
     gt = _gt(seq)
     assert _ate(res, gt) < 0.01  # 2.6 mm here at N = 2 (every frame tracked: 2.1)
     assert _ate(res, gt, final=False) < 0.01
-    assert np.array_equal(res.final_t_ns, res.online_t_ns)
+    assert np.array_equal(res.final.t_ns, res.online.t_ns)
 
 
 @pytest.mark.slow
@@ -225,7 +223,7 @@ def test_reset_starts_a_new_segment(synth_seq: Path, tmp_path: Path) -> None:
     assert len(s.resets) == 1 and "no visual tracking" in s.resets[0][1]
     assert s.segments == 2 and len(s.init_modes) == 2
     assert s.coverage >= 0.9, s.lines()
-    assert set(np.unique(res.final_segment)) == {0, 1}
+    assert set(np.unique(res.final.segment)) == {0, 1}
     write_outputs(tmp_path, res, cfg)
     tum = read_tum(tmp_path / "trajectory_final.tum")
     assert tum.has_segments

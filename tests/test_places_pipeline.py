@@ -22,9 +22,9 @@ BLACKOUT = (12.0, 15.0)  # 3 s: cameras black, no IMU rows, the drone moves on
 def _single_alignment_ate(res: RunResult, seq: object) -> float:
     """ATE of the whole final trajectory under ONE SE(3) alignment (not one per segment)."""
     gt = seq.groundtruth  # type: ignore[attr-defined]
-    idx = np.clip(np.searchsorted(gt.t_ns, res.final_t_ns), 0, len(gt) - 1)
-    ok = np.abs(gt.t_ns[idx] - res.final_t_ns) < 5_000_000
-    G, P = gt.p[idx[ok]], res.final_T[ok, :3, 3]
+    idx = np.clip(np.searchsorted(gt.t_ns, res.final.t_ns), 0, len(gt) - 1)
+    ok = np.abs(gt.t_ns[idx] - res.final.t_ns) < 5_000_000
+    G, P = gt.p[idx[ok]], res.final.p[ok]
     a = align("se3", G, P)
     return float(np.sqrt(np.mean(np.sum((G - (P @ a.R.T + a.t)) ** 2, axis=1))))
 
@@ -72,7 +72,7 @@ def test_a_reset_is_merged_back_into_the_map(flights: tuple[Path, Path], plain_a
     s = res.summary
     assert len(s.resets) == 1 and s.segments == 2, s.lines()
     assert [e.kind for e in s.places if e.kind == "merge"] == ["merge"], s.lines()
-    assert set(res.final_segment.tolist()) == {0}  # one frame
+    assert set(res.final.segment.tolist()) == {0}  # one frame
     assert s.frames_with_pose >= 0.85 * s.frames
     ate = _single_alignment_ate(res, seq)
     assert ate <= 2.0 * plain_ate, (ate, plain_ate)
@@ -83,7 +83,7 @@ def test_without_place_recognition_a_reset_is_a_new_frame(flights: tuple[Path, P
     """What the places do: with them off the same blackout leaves two unrelated frames."""
     seq = open_sequence(flights[1])
     res = SlamPipeline(seq, config_from_dict({"places": {"enabled": False}})).run()
-    assert res.summary.resets and set(res.final_segment.tolist()) == {0, 1}
+    assert res.summary.resets and set(res.final.segment.tolist()) == {0, 1}
     assert _single_alignment_ate(res, seq) > 0.1
 
 
@@ -144,8 +144,8 @@ DEGRADED = {
 def _late_online_rmse(res: RunResult, seq: object) -> float:
     """Online ATE over the last third of the flight (one SE(3) alignment over all of it)."""
     gt = seq.groundtruth  # type: ignore[attr-defined]
-    idx = np.clip(np.searchsorted(gt.t_ns, res.online_t_ns), 0, len(gt) - 1)
-    G, P = gt.p[idx], res.online_T[:, :3, 3]
+    idx = np.clip(np.searchsorted(gt.t_ns, res.online.t_ns), 0, len(gt) - 1)
+    G, P = gt.p[idx], res.online.p
     a = align("se3", G, P)
     e = np.linalg.norm(G - (P @ a.R.T + a.t), axis=1)
     return float(np.sqrt(np.mean(e[2 * len(e) // 3 :] ** 2)))

@@ -28,8 +28,8 @@ def fast_flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _ate(seq_path: Path, res: RunResult) -> float:
     gt = open_sequence(seq_path).groundtruth
     assert gt is not None
-    p_ref = gt.p[np.searchsorted(gt.t_ns, res.final_t_ns)]
-    p_est = res.final_T[:, :3, 3]
+    p_ref = gt.p[np.searchsorted(gt.t_ns, res.final.t_ns)]
+    p_est = res.final.p
     a = align("se3", p_ref, p_est)
     return float(np.sqrt(np.mean(np.sum((p_ref - (p_est @ a.R.T + a.t)) ** 2, axis=1))))
 

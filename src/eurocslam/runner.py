@@ -25,6 +25,7 @@ previous outputs as they were, plus `run.mcap.partial` (readable) if it had writ
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 from collections.abc import Sequence
@@ -64,14 +65,13 @@ OUTPUT_NAMES = (
 )
 
 
-def _trajectory(t: np.ndarray, T: np.ndarray, seg: np.ndarray, name: str) -> Trajectory:
-    segment = seg if len(seg) and np.unique(seg).size > 1 else None
-    return Trajectory.from_poses(t, T.reshape(-1, 4, 4), segment, name)
+def _for_files(traj: Trajectory) -> Trajectory:
+    """Segment ids are written only where the run has several."""
+    return traj if traj.has_segments else dataclasses.replace(traj, segment=None)
 
 
 def write_outputs(out_dir: Path, result: RunResult, cfg: RunConfig) -> None:
-    online = _trajectory(result.online_t_ns, result.online_T, result.online_segment, "online")
-    final = _trajectory(result.final_t_ns, result.final_T, result.final_segment, "final")
+    online, final = _for_files(result.online), _for_files(result.final)
     mode = result.summary.mode
     write_tum(
         out_dir / "trajectory_online.tum",

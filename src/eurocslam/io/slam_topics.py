@@ -40,7 +40,7 @@ import numpy as np
 
 from eurocslam.config import OutputConfig
 from eurocslam.dataset.types import GroundTruth, StereoFrame
-from eurocslam.geometry import F64, inv_T, make_T, quat_wxyz_to_rot, rot_z
+from eurocslam.geometry import F64, inv_T, make_T, quat_wxyz_to_rot, rot_z, wxyz_to_xyzw
 from eurocslam.io import drone, ros2
 from eurocslam.io.sensor_streams import FRAME_GT_BODY, FRAME_GT_WORLD, SensorStreams
 from eurocslam.io.sink import Sink
@@ -296,10 +296,7 @@ class SlamMcapWriter:
                 t,
                 ros2.point_cloud2(t, WORLD, result.landmarks),
             )
-        if len(result.final_t_ns):
-            self._w(
-                "/slam/path_final",
-                ros2.PATH,
-                t,
-                ros2.path(t, WORLD, result.final_t_ns, result.final_T),
-            )
+        final = result.final
+        if len(final):
+            poses = np.column_stack([final.p, wxyz_to_xyzw(final.q_wxyz)])
+            self._w("/slam/path_final", ros2.PATH, t, ros2.path(t, WORLD, final.t_ns, poses))

@@ -14,6 +14,7 @@ from eurocslam.backend.types import NavEstimate
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.types import FrontendResult
 from eurocslam.geometry import F64
+from eurocslam.trajectory import Trajectory
 
 if TYPE_CHECKING:
     from eurocslam.pipeline.summary import RunSummary
@@ -113,12 +114,12 @@ class FrameObserver(Protocol):
 
 @dataclass
 class RunResult:
-    online_t_ns: NDArray[np.int64]
-    online_T: F64  # (N, 4, 4)
-    online_segment: NDArray[np.int64]
-    final_t_ns: NDArray[np.int64]
-    final_T: F64
-    final_segment: NDArray[np.int64]
+    """A run's trajectories (every frame's pose, with the world frame it is in as its segment
+    id: online, as each frame was processed; final, after the final batch), the final map (with
+    each landmark's frame) and the summary."""
+
+    online: Trajectory
+    final: Trajectory
     landmarks: F64  # (M, 3) batch-optimised map
     landmark_segment: NDArray[np.int64]
     summary: RunSummary

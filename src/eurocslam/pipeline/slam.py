@@ -50,16 +50,16 @@ from eurocslam.maps.store import SavedMap
 from eurocslam.memory import peak_rss_mb, usable_cores
 from eurocslam.pipeline.active import ActiveSegment
 from eurocslam.pipeline.frames import WorldFrames
+from eurocslam.pipeline.outputs import RunOutputs
 from eurocslam.pipeline.places import LoopFix, PlaceStage
 from eurocslam.pipeline.records import (
     FrameObserver,
     FrameOutput,
     KeyframePath,
     PipelineState,
-    PlaceEvent,
     RunResult,
 )
-from eurocslam.pipeline.segments import Segment, assemble, extrapolate_last
+from eurocslam.pipeline.segments import Segment, extrapolate_last
 from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
 from eurocslam.pipeline.summary import IMU_BETWEEN, VO_BETWEEN, RunSummary, cpu_seconds
@@ -104,8 +104,7 @@ class SlamPipeline:
             if self.cfg.places.enabled
             else None
         )
-        self._events: list[PlaceEvent] = []  # every place event of the run
-        self._events_out = 0  # those already handed to observers
+        self.outputs = RunOutputs(self.frames)
         self.state = PipelineState.INIT
         self.segments: list[Segment] = []
         self.prior_map = prior_map
@@ -115,7 +114,6 @@ class SlamPipeline:
         self._last_pose: F64 | None = None
         self._last_good_t: int | None = None  # the last tracked frame ...
         self._last_good_T: F64 | None = None  # ... and its pose
-        self._online: list[tuple[int, F64, int]] = []  # (t, T in the segment's world, segment)
 
     # ---- segments -------------------------------------------------------------------------------
     @property
@@ -309,7 +307,7 @@ class SlamPipeline:
         if not self.cfg.inertial:
             # visual-only: constant velocity from the last two poses (the tracker's own model)
             seg = self.segment.index
-            T_cv = extrapolate_last([(o[0], o[1]) for o in self._online[-2:] if o[2] == seg], t)
+            T_cv = extrapolate_last(self.outputs.last_online(seg, 2), t)
             T_cv = nav.T_world_body if T_cv is None else T_cv
             pred = NavEstimate(t, T_cv, pred.v_world, pred.bg, pred.ba)
         # blind for longer than the prediction is worth: no prior, no new map at it
@@ -392,7 +390,7 @@ class SlamPipeline:
         uv = np.column_stack([ff.left.uv[ok, 0], ff.stereo.uR[ok], ff.left.uv[ok, 1]])
         view = self.places.view(ff.t_ns, uv, ff.left.desc[ok], octave=ff.left.octave[ok])
         found = self.places.relocalize(view, self.segment.index)
-        self._events += found.events
+        self.outputs.add_events(found.events)
         T = found.T_seg_query
         if T is None:
             return None
@@ -462,12 +460,12 @@ class SlamPipeline:
             p.update_pose(seg, k, T)
         view = p.view(t, fr.stereo_uv, fr.descriptors, p.new_key(), fr.landmark_ids, fr.octaves)
         merged = p.merge(view, seg, upd.nav.T_world_body)
-        self._events += merged.events
+        self.outputs.add_events(merged.events)
         if merged.merge is not None:
             self.frames.merge(seg, *merged.merge)
         else:
             loop = p.loop(view, seg, upd.nav.T_world_body, self.live.est.pose_covariance)
-            self._events += loop.events
+            self.outputs.add_events(loop.events)
             if loop.loop is not None:
                 upd, correction = self._close_loop(loop.loop, upd, correction)
         # the estimator's uncertainty, sampled for the loop gate (`PlaceStage.loop`)
@@ -562,65 +560,38 @@ class SlamPipeline:
         reset_reason: str = "",
         left_out: bool = False,
     ) -> FrameOutput:
-        """One frame's output, in the world frame its segment is in (`T`, the path and the
-        landmarks are in the segment's own world; a merged segment's are moved)."""
-        seg = self.segment.index if segment is None else segment
-        if T is not None:
-            self._online.append((t, T, seg))
-        C = self.frames.T_frame_seg(seg)
-        if not np.array_equal(C, np.eye(4)):
-            T = None if T is None else C @ T
-            if path is not None:
-                path = KeyframePath(path.t_ns, C @ path.T_world_body)
-            if landmarks is not None:
-                landmarks = landmarks @ C[:3, :3].T + C[:3, 3]
-        events = tuple(self._events[self._events_out :])
-        self._events_out = len(self._events)
-        return FrameOutput(
+        """One frame's output (`segment`: a segment that has just ended, else the running one)."""
+        ended = segment is not None
+        return self.outputs.frame(
             t,
             state,
             T,
-            seg,
-            path is not None,
+            self.segment.index if segment is None else segment,
             fr,
             nav,
-            reset_reason,
-            n_keyframes=self.live.kf_index + 1 if segment is None else 0,
-            n_resets=len(self.summary.resets),
-            n_active_landmarks=self.live.n_active if segment is None else 0,
-            keyframe_path=path,
-            landmarks=landmarks,
-            frame=self.frames.frame_of(seg),
-            places=events,
+            path,
+            landmarks,
+            reset_reason=reset_reason,
             left_out=left_out,
+            n_keyframes=0 if ended else self.live.kf_index + 1,
+            n_resets=len(self.summary.resets),
+            n_active_landmarks=0 if ended else self.live.n_active,
         )
 
     def result(self) -> RunResult:
         s = self.summary
         s.segments = sum(1 for seg in self.segments if seg.records)
-        frames = self.frames
         if self.places is not None:
             for seg, T_frame_seg in self.places.refined_frames().items():
-                frames.place(seg, T_frame_seg)
-        final = assemble(self.segments, frames.frames, frames.poses)
-        s.landmarks = len(final.landmarks)
+                self.frames.place(seg, T_frame_seg)
+        res = self.outputs.result(self.segments, s)
+        s.landmarks = len(res.landmarks)
         if self.places is not None:
-            s.places = list(self._events)
+            s.places = list(self.outputs.events)
             s.place_db = self.places.stats()
         if self.prior_map is not None:
             starts = [seg.records[0].t_ns for seg in self.segments if seg.records]
-            s.prior_map["localized_after_s"] = localized_after_s(starts, self._events, frames)
-        on_t = np.array([o[0] for o in self._online], dtype=np.int64)
-        on_T = np.array([frames.T_frame_seg(o[2]) @ o[1] for o in self._online]).reshape(-1, 4, 4)
-        on_s = np.array([frames.frame_of(o[2]) for o in self._online], dtype=np.int64)
-        return RunResult(
-            on_t,
-            on_T,
-            on_s,
-            final.t_ns,
-            final.T,
-            final.segment,
-            final.landmarks,
-            final.landmark_segment,
-            s,
-        )
+            s.prior_map["localized_after_s"] = localized_after_s(
+                starts, self.outputs.events, self.frames
+            )
+        return res
