@@ -16,7 +16,7 @@ from eurocslam.backend.estimator import KeyframeEstimator
 from eurocslam.backend.types import KeyframeUpdate, NavEstimate
 from eurocslam.geometry import F64
 from eurocslam.pipeline.records import KeyframePath
-from eurocslam.pipeline.segments import FrameRecord, Segment
+from eurocslam.pipeline.segments import FrameRecord, Segment, extrapolate_last
 from eurocslam.pipeline.startup import Startup
 from eurocslam.timebase import ns_to_s
 
@@ -32,6 +32,24 @@ class ActiveSegment:
     tracked_offset: F64 | None = None  # last tracked pose @ inv(its prediction)
     cov_sampled_t: int = -(1 << 62)  # the last keyframe whose covariance was sampled
     kf_path: list[tuple[int, F64]] = field(default_factory=list)  # time, latest smoothed pose
+
+    def predict(self, t_ns: int, inertial: bool, recent: list[tuple[int, F64]]) -> NavEstimate:
+        """The state a frame is expected in: with the IMU, preintegrated from the latest
+        keyframe's (the estimator's `predict`); visual-only, the pose at constant velocity from
+        the segment's last two output poses (`recent`; the keyframe's before there are two)."""
+        pred = self.est.predict(t_ns)
+        if inertial:
+            return pred
+        assert self.nav is not None
+        T_cv = extrapolate_last(recent, t_ns)
+        T_cv = self.nav.T_world_body if T_cv is None else T_cv
+        return NavEstimate(t_ns, T_cv, pred.v_world, pred.bg, pred.ba)
+
+    def between(self, t_ns: int) -> F64:
+        """The pose of a frame left out by `track_every`: the IMU's motion since the last
+        tracked frame (across an IMU dropout, the estimator's constant velocity)."""
+        T = self.est.predict(t_ns).T_world_body
+        return T if self.tracked_offset is None else self.tracked_offset @ T
 
     def record(self, t_ns: int, T_world_body: F64, ref_kf: int | None = None) -> None:
         """A frame of the segment, hanging from the latest keyframe (or `ref_kf`)."""

@@ -51,6 +51,11 @@ class WorldFrames:
         """How many distinct frames the segments are in."""
         return len(set(self._frame_of))
 
+    def to_frame(self, segment: int, p_seg: F64) -> F64:
+        """Points (N, 3) of a segment's world in the frame it is in."""
+        C = self._T_frame_seg[segment]
+        return np.asarray(p_seg @ C[:3, :3].T + C[:3, 3], dtype=np.float64)
+
     def merge(self, root: int, frame: int, T_frame_root: F64) -> None:
         """Put the frame of segment `root` (and every segment in it) into frame `frame`."""
         for s, f in enumerate(self._frame_of):

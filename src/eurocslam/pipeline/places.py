@@ -30,6 +30,8 @@ from numpy.typing import NDArray
 
 from eurocslam.camera import RectifiedStereo
 from eurocslam.config import PlacesConfig
+from eurocslam.frontend.extraction import FrameFeatures
+from eurocslam.frontend.types import FrontendResult
 from eurocslam.geometry import (
     F64,
     inv_T,
@@ -156,16 +158,17 @@ class PlaceStage:
         }
 
     # ---- keyframes ----------------------------------------------------------------------------
-    def view(
-        self,
-        t_ns: int,
-        stereo_uv: F64,
-        desc: np.ndarray,
-        key: int = -1,
-        landmark_ids: NDArray[np.int64] | None = None,
-        octave: NDArray[np.int32] | None = None,
-    ) -> PlaceView:
-        return self.recognizer.view(key, t_ns, stereo_uv, desc, landmark_ids, octave)
+    def keyframe_view(self, t_ns: int, fr: FrontendResult) -> PlaceView:
+        """A keyframe as the stage files it (under a new key): its stereo observations."""
+        return self.recognizer.view(
+            self.new_key(), t_ns, fr.stereo_uv, fr.descriptors, fr.landmark_ids, fr.octaves
+        )
+
+    def frame_view(self, ff: FrameFeatures) -> PlaceView:
+        """A lost frame's stereo keypoints, to look it up (no key: it is not filed)."""
+        ok = ff.stereo.valid
+        uv = np.column_stack([ff.left.uv[ok, 0], ff.stereo.uR[ok], ff.left.uv[ok, 1]])
+        return self.recognizer.view(-1, ff.t_ns, uv, ff.left.desc[ok], None, ff.left.octave[ok])
 
     def new_key(self) -> int:
         self._next_key += 1

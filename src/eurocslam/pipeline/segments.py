@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import NDArray
 
 from eurocslam.backend.types import SegmentSolution
 from eurocslam.geometry import F64, extrapolate, inv_T
@@ -52,6 +53,19 @@ class Segment:
     @property
     def landmarks(self) -> F64:
         return self.solution.landmarks if self.solution is not None else np.zeros((0, 3))
+
+    def landmark_positions(self, ids: NDArray[np.int64]) -> F64:
+        """The final batch's positions (N, 3) of landmarks by id (NaN: not in its map, or the
+        segment has not ended)."""
+        out = np.full((len(ids), 3), np.nan)
+        sol = self.solution
+        if sol is not None and len(sol.landmark_ids):
+            order = np.argsort(sol.landmark_ids)
+            sid = sol.landmark_ids[order]
+            j = np.clip(np.searchsorted(sid, ids), 0, len(sid) - 1)
+            hit = sid[j] == ids
+            out[hit] = sol.landmarks[order[j[hit]]]
+        return out
 
 
 @dataclass(frozen=True)

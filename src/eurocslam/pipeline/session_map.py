@@ -40,6 +40,7 @@ from eurocslam.maps.store import (
 from eurocslam.pipeline.frames import FrameView
 from eurocslam.pipeline.places import PlaceStage
 from eurocslam.pipeline.records import PlaceEvent, PlaceKind
+from eurocslam.pipeline.segments import Segment
 from eurocslam.timebase import ns_to_s
 
 MAP_SEGMENT = 0  # the segment an earlier map is filed as
@@ -72,10 +73,22 @@ class PriorMap:
         if why is not None:
             raise MapError(f"{meta}: built with another camera rig ({why})")
 
-    def solution(self) -> SegmentSolution:
-        """The map's landmarks as the map segment's solution (what `map_points` reads)."""
+    def segment(self) -> Segment:
+        """The map as segment `MAP_SEGMENT`: no frames, its landmarks as the segment's
+        solution (what the place stage's `map_points` reads)."""
         m = self.map
-        return SegmentSolution({}, m.landmark_xyz, m.landmark_id, {}, None)
+        return Segment(
+            MAP_SEGMENT, solution=SegmentSolution({}, m.landmark_xyz, m.landmark_id, {}, None)
+        )
+
+    def summary(self) -> dict[str, object]:
+        """The map as the run's summary names it (`prior_map`)."""
+        return {
+            "path": str(self.path),
+            "keyframes": len(self.map.keyframes),
+            "landmarks": int(self.map.landmark_id.size),
+            "load_s": round(self.load_s, 3),
+        }
 
 
 def _main_frame(places: PlaceStage, n_segments: int) -> int:

@@ -7,23 +7,11 @@ per keyframe, `SegmentSolution` per segment) -> observers (`on_frame(frame, Fram
 Place recognition (`PlaceStage`) sees every keyframe and every lost frame. The mode
 (stereo-inertial or visual-only) is the configuration's, resolved once.
 
-States (`PipelineState`):
-
-* **INIT**: no estimate yet (start, or after a reset): `startup.py`.
-* **TRACKING**: per frame, the estimator predicts the pose from the latest keyframe state, the
-  tracker tracks its local map from that prediction, keyframes go into the smoother (and the
-  tracker adopts the smoothed pose and landmarks). The online pose of a frame is the smoothed
-  state for keyframes and the tracker's pose otherwise. At each keyframe place recognition looks
-  for a loop (and corrects the estimate when the drift is large) and, in a segment started after
-  a reset, for a place of an earlier segment (then the segment joins that segment's world).
-  With `frontend.track_every` N > 1 only every Nth frame is extracted and tracked; a frame
-  between gets the IMU's motion since the last tracked frame as its pose.
-* **LOST**: blank / missing images or failed tracking: the prediction bridges the frames while
-  it is worth something (`health.max_lost_s` with the IMU, `max_lost_s_no_imu` without or
-  across an IMU dropout); beyond, frames get no pose while every frame with images is matched
-  against the map by appearance (relocalization) for up to `places.relocalize_max_s`. A smoother
-  failure, NaN, out-of-bounds velocity/biases, or no relocalization in time reset the estimator:
-  the segment ends (final batch) and a new one starts with a fresh initialisation.
+States (`PipelineState`): **INIT** (no estimate yet: `startup.py`), **TRACKING** (the
+prediction seeds the tracker, keyframes go into the smoother and past place recognition, the
+tracker takes one correction per keyframe; with `frontend.track_every` N > 1 a frame between
+tracked ones gets the IMU's motion), **LOST** (bridged, waiting for relocalization, or reset:
+`recovery.py`). docs/architecture.md describes each.
 """
 
 from __future__ import annotations
@@ -35,7 +23,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from eurocslam.backend.estimator import KeyframeEstimator
-from eurocslam.backend.health import Health, Verdict
+from eurocslam.backend.health import Health
 from eurocslam.backend.pose_graph import LoopEdge
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate
 from eurocslam.config import RunConfig, resolve_mode
@@ -47,7 +35,6 @@ from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState
 from eurocslam.geometry import F64, inv_T
 from eurocslam.maps.store import SavedMap
-from eurocslam.memory import peak_rss_mb, usable_cores
 from eurocslam.pipeline.active import ActiveSegment
 from eurocslam.pipeline.frames import WorldFrames
 from eurocslam.pipeline.outputs import RunOutputs
@@ -59,11 +46,13 @@ from eurocslam.pipeline.records import (
     PipelineState,
     RunResult,
 )
-from eurocslam.pipeline.segments import Segment, extrapolate_last
+from eurocslam.pipeline.recovery import LostAction, Recovery
+from eurocslam.pipeline.segments import Segment
 from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
-from eurocslam.pipeline.summary import IMU_BETWEEN, VO_BETWEEN, RunSummary, cpu_seconds
+from eurocslam.pipeline.summary import IMU_BETWEEN, VO_BETWEEN, RunSummary
 from eurocslam.places.loop_gate import yaw_and_translation
+from eurocslam.timebase import ns_to_s
 
 
 class SlamPipeline:
@@ -88,6 +77,7 @@ class SlamPipeline:
         self.features = FeatureStream(source.rig, self.cfg.frontend)
         self.stereo = self.features.extractor.geometry
         self.health = Health(self.cfg.health, self.cfg.inertial)
+        self.recovery = Recovery(self.health, self.cfg.places if self.cfg.places.enabled else None)
         self.tracker = StereoTracker(
             self.features.extractor.rectifier, self.cfg.frontend.for_mode(self.cfg.inertial)
         )
@@ -112,8 +102,6 @@ class SlamPipeline:
             self._file_prior_map(prior_map)
         self._new_segment()
         self._last_pose: F64 | None = None
-        self._last_good_t: int | None = None  # the last tracked frame ...
-        self._last_good_T: F64 | None = None  # ... and its pose
 
     # ---- segments -------------------------------------------------------------------------------
     @property
@@ -138,30 +126,20 @@ class SlamPipeline:
                 "--map needs place recognition and merging (places.enabled, places.merge: true)"
             )
         prior.check(self.source.rig, self.places.vocabulary_id)
-        seg = Segment(MAP_SEGMENT, solution=prior.solution())
-        self.segments.append(seg)
+        self.segments.append(prior.segment())
         self.frames.new_segment()
         self.places.file_saved(prior.map.keyframes, MAP_SEGMENT)
-        self.summary.prior_map = {
-            "path": str(prior.path),
-            "keyframes": len(prior.map.keyframes),
-            "landmarks": int(prior.map.landmark_id.size),
-            "load_s": round(prior.load_s, 3),
-        }
+        self.summary.prior_map = prior.summary()
 
     def saved_map(self) -> SavedMap | None:
         """The run's map for later sessions (after `run`); None without place recognition."""
         if self.places is None:
             return None
 
-        def points_in_frame(segment: int, ids: np.ndarray) -> F64:
-            C = self.frames.T_frame_seg(segment)
-            return self._map_points(segment, ids) @ C[:3, :3].T + C[:3, 3]
-
         return build_map(
             self.places,
             len(self.segments),
-            points_in_frame,
+            lambda seg, ids: self.frames.to_frame(seg, self._map_points(seg, ids)),
             self.prior_map,
             self.source.name,
             self.source.rig,
@@ -210,9 +188,7 @@ class SlamPipeline:
         t_end_ns: int | None,
         on_progress: Callable[[FrameOutput], None] | None,
     ) -> RunResult:
-        wall0 = time.perf_counter()
-        cpu0 = cpu_seconds()
-        thread0 = time.thread_time()
+        self.summary.start_clock()
         frames = self.source.frames(
             include_incomplete=True, t_start_ns=t_start_ns, t_end_ns=t_end_ns
         )
@@ -229,39 +205,23 @@ class SlamPipeline:
             if on_progress is not None:
                 on_progress(out)
         self._finish_segment()
-        s = self.summary
-        s.wall_s = time.perf_counter() - wall0
-        s.cpu_s = cpu_seconds() - cpu0
-        s.tracking_cpu_s = time.thread_time() - thread0
-        s.cores = usable_cores()
-        s.peak_rss_mb = peak_rss_mb()
-        s.add_extraction_cost(self.features.cost)
+        span_s = None
         if t_first is not None and t_last is not None:
-            s.duration_s = (t_last - t_first) * 1e-9 + 1.0 / max(self.source.rig.cam0.rate_hz, 1e-9)
+            span_s = ns_to_s(t_last - t_first) + 1.0 / max(self.source.rig.cam0.rate_hz, 1e-9)
+        self.summary.stop_clock(self.features.cost, span_s)
         return self.result()
 
     def step(self, ff: FrameFeatures) -> FrameOutput:
         """Process one frame (features already extracted)."""
-        s = self.summary
-        s.frames += 1
-        for k in ("decode", "rectify", "orb", "stereo_matching"):
-            if k in ff.timings_ms:
-                s.add_time(k, ff.timings_ms[k])
+        self.summary.count_frame(ff.timings_ms)
         if ff.problem == SKIPPED and self.state != PipelineState.LOST:
             out = self._between(ff.t_ns)  # lost, it is a frame without images
         elif self.state == PipelineState.INIT:
             out = self._step_init(ff)
         else:
             out = self._step_tracking(ff)
-        if out.frontend is not None:
-            s.landmarks_reused += out.frontend.n_reused
-            if out.frontend.track_path:
-                s.count_path(out.frontend.track_path)
-            if "track_total" in out.frontend.timings_ms:
-                s.add_time("tracking", out.frontend.timings_ms["track_total"])
-        s.state_frames[out.state.value] = s.state_frames.get(out.state.value, 0) + 1
+        self.summary.count_output(out)
         if out.T_world_body is not None:
-            s.frames_with_pose += 1
             self._last_pose = out.T_world_body
         return out
 
@@ -275,8 +235,7 @@ class SlamPipeline:
                 self.live.record(t, T_vo, -1)
             self.summary.count_path(VO_BETWEEN)
             return self._emit(t, PipelineState.INIT, T_vo, None, left_out=True)
-        T = self.live.est.predict(t).T_world_body
-        T = T if self.live.tracked_offset is None else self.live.tracked_offset @ T
+        T = self.live.between(t)
         self.live.record(t, T)
         self.summary.count_path(IMU_BETWEEN)
         return self._emit(t, PipelineState.TRACKING, T, None, self.live.nav, left_out=True)
@@ -303,16 +262,12 @@ class SlamPipeline:
         nav = self.live.nav
         assert nav is not None
         t = ff.t_ns
-        pred = self.live.est.predict(t)
-        if not self.cfg.inertial:
-            # visual-only: constant velocity from the last two poses (the tracker's own model)
-            seg = self.segment.index
-            T_cv = extrapolate_last(self.outputs.last_online(seg, 2), t)
-            T_cv = nav.T_world_body if T_cv is None else T_cv
-            pred = NavEstimate(t, T_cv, pred.v_world, pred.bg, pred.ba)
+        recent = [] if self.cfg.inertial else self.outputs.last_online(self.segment.index, 2)
+        pred = self.live.predict(t, self.cfg.inertial, recent)
         # blind for longer than the prediction is worth: no prior, no new map at it
-        blind = self.state == PipelineState.LOST and not self._lost_verdict(t).ok
-        since_kf = (t - nav.t_ns) * 1e-9
+        imu_ok = self.live.est.imu_ok_since_keyframe()
+        blind = self.state == PipelineState.LOST and not self.recovery.verdict(t, imu_ok).ok
+        since_kf = ns_to_s(t - nav.t_ns)
         bc = self.cfg.backend
         kf_ok = since_kf >= bc.min_keyframe_interval_s
         prior = pred.T_world_body if self.cfg.inertial and not blind else None
@@ -324,17 +279,11 @@ class SlamPipeline:
             out = self._relocalize(ff, pred)
             if out is not None:
                 return out
-        # after a loss, the tracker's own recovery (no prior) must convince at least as much as
-        # a place match; the tracker keeps nothing of a frame below that bar
-        hc = self.cfg.health
-        need = hc.min_tracked
-        if blind:
-            need = max(need, hc.recover_min_inliers)
-            if self.places is not None:
-                need = max(need, self.cfg.places.min_inliers)
+        # the tracker keeps nothing of a frame below the bar
+        need = self.recovery.min_inliers(blind)
         fr = self.tracker.track(ff, prior, kf_ok, may_restart=not blind, min_inliers=need)
         T = fr.T_world_body  # tracked (with `need` inliers), or None
-        if T is not None and not blind and not self._plausible(t, pred.T_world_body, T).ok:
+        if T is not None and not blind and not self.recovery.plausible(t, pred.T_world_body, T).ok:
             T = None
             self.tracker.apply(MapCorrection(pred.T_world_body))
         if T is not None:
@@ -348,48 +297,31 @@ class SlamPipeline:
                 return self._add_keyframe(t, fr, pred, T if blind else None)
             self.live.record(t, T)
             self.state = PipelineState.TRACKING
-            self._last_good_t, self._last_good_T = t, T
+            self.recovery.trusted(t, T)
             self.live.tracked_offset = T @ inv_T(pred.T_world_body)
             return self._emit(t, PipelineState.TRACKING, T, fr, nav)
         if self.places is not None and ff.problem is None and not blind:
             out = self._relocalize(ff, pred)
             if out is not None:
                 return out
-        # LOST: bridge with the prediction while it is worth something (stereo-inertial: only
-        # an IMU prediction; across an IMU dropout there is none to give)
-        verdict = self._lost_verdict(t)
+        # LOST (`recovery.py`)
         T = pred.T_world_body
-        finite = bool(np.all(np.isfinite(T)))
-        bridged = not self.cfg.inertial or self.live.est.imu_ok_since_keyframe()
-        if verdict.ok and finite and (bridged or self.places is None):
+        imu_ok = self.live.est.imu_ok_since_keyframe()
+        lost = self.recovery.decide(t, T, imu_ok, self.cfg.inertial, self._last_pose)
+        if lost.action == LostAction.BRIDGE:
             self.state = PipelineState.LOST
             self.live.record(t, T)
             return self._emit(t, PipelineState.LOST, T, fr, nav)
-        lost_s = (t - (self._last_good_t or t)) * 1e-9
-        if self.places is not None and finite and lost_s < self.cfg.places.relocalize_max_s:
+        if lost.action == LostAction.WAIT:
             self.state = PipelineState.LOST  # no pose; relocalization goes on
             return self._emit(t, PipelineState.LOST, None, fr, nav)
-        reason = verdict.reason if not verdict.ok else "non-finite prediction"
-        if self.places is not None and not verdict.ok:
-            reason += f"; no place recognised for {lost_s:.1f} s"
-        if finite and not bridged:
-            # across an IMU dropout the prediction is no pose for this frame, only a place
-            # for the next segment to start
-            return self._fail(t, reason, T, fr, guess=False)
-        return self._fail(t, reason, T if finite else self._last_pose, fr)
-
-    def _lost_verdict(self, t: int) -> Verdict:
-        lost_s = (t - (self._last_good_t or t)) * 1e-9
-        return self.health.lost(lost_s, self.live.est.imu_ok_since_keyframe())
+        return self._fail(t, lost.reason, lost.T_hint, fr, guess=lost.guess)
 
     def _relocalize(self, ff: FrameFeatures, pred: NavEstimate) -> FrameOutput | None:
         """A lost frame found in the map by appearance: a new local map there, a keyframe tied
         to the map by its pose."""
         assert self.places is not None
-        ok = ff.stereo.valid
-        uv = np.column_stack([ff.left.uv[ok, 0], ff.stereo.uR[ok], ff.left.uv[ok, 1]])
-        view = self.places.view(ff.t_ns, uv, ff.left.desc[ok], octave=ff.left.octave[ok])
-        found = self.places.relocalize(view, self.segment.index)
+        found = self.places.relocalize(self.places.frame_view(ff), self.segment.index)
         self.outputs.add_events(found.events)
         T = found.T_seg_query
         if T is None:
@@ -417,7 +349,7 @@ class SlamPipeline:
         T = upd.nav.T_world_body
         verdict = self.health.state(upd.nav)
         if verdict.ok and pose_prior is None:
-            verdict = self._plausible(t, pred.T_world_body, T)
+            verdict = self.recovery.plausible(t, pred.T_world_body, T)
         if not verdict.ok:
             return self._fail(t, verdict.reason, pred.T_world_body, fr)
         b = self.cfg.backend
@@ -444,7 +376,7 @@ class SlamPipeline:
         seg.kf_T_chain[upd.index] = T
         self.live.record(t, T, upd.index)
         self.state = PipelineState.TRACKING
-        self._last_good_t, self._last_good_T = t, T
+        self.recovery.trusted(t, T)
         self.live.tracked_offset = None  # the predictions start from this keyframe's state
         return self._keyframe_out(t, upd, fr)
 
@@ -458,7 +390,7 @@ class SlamPipeline:
         p, seg = self.places, self.segment.index
         for k, T in upd.window:
             p.update_pose(seg, k, T)
-        view = p.view(t, fr.stereo_uv, fr.descriptors, p.new_key(), fr.landmark_ids, fr.octaves)
+        view = p.keyframe_view(t, fr)
         merged = p.merge(view, seg, upd.nav.T_world_body)
         self.outputs.add_events(merged.events)
         if merged.merge is not None:
@@ -503,21 +435,7 @@ class SlamPipeline:
         ended one."""
         if segment == self.segment.index and self.segment.solution is None:
             return self.live.est.landmark_positions(ids)
-        out = np.full((len(ids), 3), np.nan)
-        sol = self.segments[segment].solution
-        if sol is not None and len(sol.landmark_ids):
-            order = np.argsort(sol.landmark_ids)
-            sid = sol.landmark_ids[order]
-            j = np.clip(np.searchsorted(sid, ids), 0, len(sid) - 1)
-            hit = sid[j] == ids
-            out[hit] = sol.landmarks[order[j[hit]]]
-        return out
-
-    def _plausible(self, t: int, T_pred: F64, T_new: F64) -> Verdict:
-        """`Health.motion` of a tracked or smoothed pose at `t`."""
-        T_last = self._last_good_T if self._last_good_T is not None else T_pred
-        dt = (t - (self._last_good_t if self._last_good_t is not None else t)) * 1e-9
-        return self.health.motion(T_pred, T_last, dt, T_new)
+        return self.segments[segment].landmark_positions(ids)
 
     def _fail(
         self,

@@ -11,7 +11,8 @@ import numpy as np
 
 from eurocslam.backend.types import ImuCheck
 from eurocslam.frontend.stream import ExtractionCost
-from eurocslam.pipeline.records import PlaceEvent, PlaceKind
+from eurocslam.memory import peak_rss_mb, usable_cores
+from eurocslam.pipeline.records import FrameOutput, PlaceEvent, PlaceKind
 
 
 def cpu_seconds() -> float:
@@ -76,6 +77,7 @@ class RunSummary:
     reader_cpu_s: float = math.nan
     cores: int = 0  # CPU cores the run could use
     duration_s: float = 0.0
+    _clock0: tuple[float, float, float] = (0.0, 0.0, 0.0)  # wall, CPU, thread CPU at the start
 
     def add_time(self, stage: str, ms: float) -> None:
         self.timings_ms.setdefault(stage, []).append(ms)
@@ -83,6 +85,44 @@ class RunSummary:
     def count_path(self, path: str) -> None:
         """One more frame whose pose was found by `path` (`track_paths`)."""
         self.track_paths[path] = self.track_paths.get(path, 0) + 1
+
+    def start_clock(self) -> None:
+        """The run starts: wall, process and this thread's CPU time from now."""
+        self._clock0 = (time.perf_counter(), cpu_seconds(), time.thread_time())
+
+    def stop_clock(self, cost: ExtractionCost, span_s: float | None) -> None:
+        """The run ends (its final batch included): wall and CPU time, the extraction workers'
+        and the reader's, memory; `span_s`: the data's duration (None: no frame)."""
+        wall0, cpu0, thread0 = self._clock0
+        self.wall_s = time.perf_counter() - wall0
+        self.cpu_s = cpu_seconds() - cpu0
+        self.tracking_cpu_s = time.thread_time() - thread0
+        self.cores = usable_cores()
+        self.peak_rss_mb = peak_rss_mb()
+        self.add_extraction_cost(cost)
+        if span_s is not None:
+            self.duration_s = span_s
+
+    def count_frame(self, timings_ms: dict[str, float]) -> None:
+        """One more frame, with its extraction stage's times."""
+        self.frames += 1
+        for k in ("decode", "rectify", "orb", "stereo_matching"):
+            if k in timings_ms:
+                self.add_time(k, timings_ms[k])
+
+    def count_output(self, out: FrameOutput) -> None:
+        """What the frame's output says: its state, whether it has a pose, how tracking found
+        it and what that cost, the landmarks map reuse found again."""
+        fr = out.frontend
+        if fr is not None:
+            self.landmarks_reused += fr.n_reused
+            if fr.track_path:
+                self.count_path(fr.track_path)
+            if "track_total" in fr.timings_ms:
+                self.add_time("tracking", fr.timings_ms["track_total"])
+        self.state_frames[out.state.value] = self.state_frames.get(out.state.value, 0) + 1
+        if out.T_world_body is not None:
+            self.frames_with_pose += 1
 
     def add_extraction_cost(self, cost: ExtractionCost) -> None:
         """The extraction workers' memory and CPU time, and the frame reader's (none inline)."""
