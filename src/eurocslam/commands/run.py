@@ -7,6 +7,9 @@ import sys
 
 NAME = "run"
 HELP = "stereo-inertial SLAM: OUT/run.mcap (sensor streams + estimate), trajectories, map"
+# `run` closes what it opens (extraction workers, the MCAP writer's thread, the live view): the
+# `eurocslam` process may end right after it, without freeing the run's objects one by one
+QUICK_EXIT = True
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
