@@ -176,8 +176,8 @@ class PlaceRecognizer:
         """Rows of the query and of the candidate whose descriptors match (the nearest within
         `max_hamming` and nearer than `ratio` x the second nearest), or None when fewer than
         `min_inliers` do. The two nearest come from one `cv2.batchDistance`: the kernel
-        BFMatcher's knnMatch runs, the same rows, without a DMatch object per row (MH_04
-        replica: 20 % less time)."""
+        BFMatcher's knnMatch runs, the same rows, without a DMatch object per row (the 847
+        matchings of a MH_04 replica run, interleaved: 3.59 against 3.80 ms of CPU each)."""
         c = self.cfg
         if len(query.desc) < c.min_inliers or len(cand.desc) < max(c.min_inliers, 2):
             return None
