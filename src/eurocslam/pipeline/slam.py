@@ -445,7 +445,7 @@ class SlamPipeline(Startup):
             p.update_pose(seg, k, T)
         view = p.view(t, fr.stereo_uv, fr.descriptors, p.new_key(), fr.landmark_ids, fr.octaves)
         if p.merge(view, seg, upd.nav.T_world_body) is None:
-            fix = p.loop(view, seg, upd.nav.T_world_body, self.est.pose_covariance)
+            fix = p.loop(view, seg, upd.nav.T_world_body, self.est.pose_covariance, upd.index)
             if fix is not None:
                 upd = self._close_loop(fix, upd)
         # the estimator's uncertainty, sampled for the loop gate (`PlaceStage.loop`)
