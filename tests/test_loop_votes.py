@@ -4,6 +4,7 @@ consistency over keyframes, and the gate of the drift against the estimator's un
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 
 import numpy as np
@@ -30,7 +31,7 @@ class GivenMatches:
         pass
 
     def find(
-        self, view: PlaceView, accept: Callable[[int], bool], points: object
+        self, view: PlaceView, accept: Callable[[int], bool], points: object, min_score: float
     ) -> PlaceMatch | None:
         m = self.match
         return m if m is not None and accept(m.key) else None
@@ -162,3 +163,53 @@ def test_without_an_estimators_covariance_there_is_no_gate() -> None:
 def test_without_online_correction_loops_are_only_reported() -> None:
     fixes, events = _corrections(PlacesConfig(correct_loops_online=False))
     assert fixes == [None, None] and [e.correction_m for e in events] == [0.0]
+
+
+class ScoredViews(GivenMatches):
+    """Keyframes with landmarks and fixed appearance scores against any query; records the
+    least score `find` was asked for."""
+
+    def __init__(self, scores: dict[int, float]) -> None:
+        super().__init__()
+        self.views: dict[int, PlaceView] = {}
+        self.asked: list[float] = []
+        scores_ = scores
+
+        class Db:
+            def score(self, key: int, bow: BowVector) -> float:
+                return scores_[key]
+
+        self.db = Db()
+
+    def add(self, view: PlaceView) -> None:
+        self.views[view.key] = view
+
+    def get(self, key: int) -> PlaceView:
+        return self.views[key]
+
+    def find(
+        self, view: PlaceView, accept: Callable[[int], bool], points: object, min_score: float
+    ) -> PlaceMatch | None:
+        self.asked.append(min_score)
+        return None
+
+
+def _with_landmarks(v: PlaceView, ids: range) -> PlaceView:
+    return dataclasses.replace(v, landmark_ids=np.array(list(ids), np.int64))
+
+
+def test_a_loop_candidate_must_look_like_the_query_as_much_as_its_covisible_neighbours() -> None:
+    """DBoW2's normalisation: the least score of the query against the recent keyframes that
+    share at least 15 landmarks with it is the floor a candidate must reach to be verified;
+    keyframes sharing fewer are not its neighbours."""
+    views = ScoredViews({0: 0.5, 1: 0.3, 2: 0.1})
+    frames = WorldFrames()
+    frames.new_segment()
+    stage = PlaceStage(views, PlacesConfig(), frames, lambda s, ids: np.full((ids.size, 3), np.nan))  # type: ignore[arg-type]
+    stage.file(_with_landmarks(_view(0, 0.0), range(0, 100)), 0, 0, np.eye(4))
+    stage.file(_with_landmarks(_view(1, 0.1), range(80, 200)), 0, 1, np.eye(4))
+    stage.file(_with_landmarks(_view(2, 0.2), range(300, 400)), 0, 2, np.eye(4))
+    query = _with_landmarks(_view(3, 0.3), range(70, 310))  # shares 30, 120 and 10 landmarks
+    stage.loop(query, 0, np.eye(4), index=3)
+    stage.loop(_with_landmarks(_view(4, 0.4), range(1000, 1100)), 0, np.eye(4), index=4)
+    assert views.asked == [pytest.approx(0.3), 0.0]

@@ -162,10 +162,12 @@ class PlacesConfig:
     # the gate (pipeline/places.py `loop_gate`): a correction is applied only when the drift it
     # measures is one the estimator's uncertainty allows, given the match's own (chi-square, 6
     # DoF; 16.81: 99 %); refused loops are reported. The estimator's pose covariance is sampled
-    # at a keyframe every `loop_covariance_every_s` (a marginal covariance costs about a fifth of
-    # a smoother update) and at the query when a loop reaches the gate
+    # at a keyframe every `loop_covariance_every_s` (a marginal covariance costs about a fifth
+    # of a smoother update: 2 s of the tracking thread per minute sampled every second) and at
+    # the query when a loop reaches the gate; a candidate between samples takes the next one's
+    # (the larger: the stricter gate)
     loop_gate_chi2: float = 16.81
-    loop_covariance_every_s: float = 1.0
+    loop_covariance_every_s: float = 5.0
     # act on such a loop online: move the estimate onto the old map (the smoother restarts from
     # the moved state, the tracker's map moves with it) and give the final batch the loop edge;
     # off: loops are recognised and reported, and closed by map reuse in the final batch

@@ -86,6 +86,12 @@ class PlaceAnswer:
     T_seg_query: F64 | None = None
 
 
+# covisible keyframes (`PlaceStage._covisible_floor`): among the segment's last 10 keyframes,
+# those sharing at least 15 landmarks with the query (ORB-SLAM's covisibility graph edge)
+COVISIBLE_LOOKBACK = 10
+COVISIBLE_MIN_SHARED = 15
+
+
 def _size(D: F64) -> tuple[float, float]:
     return float(np.linalg.norm(D[:3, 3])), float(np.degrees(np.linalg.norm(so3_log(D[:3, :3]))))
 
@@ -223,10 +229,29 @@ class PlaceStage:
         ref = self._keyframes[key]
         return self.frames.T_frame_seg(ref.segment) @ ref.T_seg_body
 
-    def _find(self, view: PlaceView, accept: Callable[[int], bool]) -> PlaceMatch | None:
+    def _find(
+        self, view: PlaceView, accept: Callable[[int], bool], min_score: float = 0.0
+    ) -> PlaceMatch | None:
         """A verified match, its pose in the candidate's world frame."""
         self.n_queries += 1
-        return self.recognizer.find(view, accept, self._points)
+        return self.recognizer.find(view, accept, self._points, min_score=min_score)
+
+    def _covisible_floor(self, view: PlaceView, segment: int, index: int) -> float:
+        """The least appearance score of the query against its covisible keyframes: the
+        segment's last `COVISIBLE_LOOKBACK` keyframes that share at least
+        `COVISIBLE_MIN_SHARED` landmarks with it (0 where none does). A loop candidate that
+        looks less like the query than those neighbours do is no evidence of a revisit; DBoW2 /
+        ORB-SLAM normalise loop scores this way, and most queries then verify no candidate."""
+        ids = view.landmark_ids[view.landmark_ids >= 0]
+        floor = float("inf")
+        for i in range(max(index - COVISIBLE_LOOKBACK, 0), index):
+            key = self._key_of.get((segment, i))
+            if key is None:
+                continue
+            other = self.recognizer.get(key)
+            if np.intersect1d(ids, other.landmark_ids).size >= COVISIBLE_MIN_SHARED:
+                floor = min(floor, self.recognizer.db.score(key, view.bow))
+        return floor if floor != float("inf") else 0.0
 
     def _points(self, cand: PlaceView) -> CandidatePoints:
         """A keyframe's points in its world frame: the map's positions of its landmarks, its
@@ -262,12 +287,15 @@ class PlaceStage:
         segment: int,
         T_seg_query: F64,
         cov_query: Callable[[], F64 | None] | None = None,
+        index: int = -1,
     ) -> PlaceAnswer:
         """`loop`: a consistent loop large enough to correct at this keyframe that passes the
         gate (None: none). `cov_query()`: the estimator's covariance of the query's pose
         (segment frame, as `KeyframeRef.cov_seg`; None: not available, the loop is refused);
         asked only for a loop that reaches the gate. Without `cov_query` there is no gate (no
-        estimator)."""
+        estimator). `index`: the query's keyframe index in the segment (its covisible
+        neighbours set the least appearance score a candidate needs, `_covisible_floor`; -1:
+        none)."""
         c, frames, kfs = self.cfg, self.frames, self._keyframes
         frame = frames.frame_of(segment)
         t_max = view.t_ns - s_to_ns(c.loop_min_age_s)
@@ -282,7 +310,8 @@ class PlaceStage:
                 and (ref.t_ns <= t_max or ref.segment != segment)
             )
 
-        m = self._find(view, accept)
+        floor = self._covisible_floor(view, segment, index) if index >= 0 else 0.0
+        m = self._find(view, accept, floor)
         if m is None:
             self._loop_votes = []
             return PlaceAnswer()

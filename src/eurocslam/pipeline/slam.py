@@ -396,7 +396,7 @@ class SlamPipeline:
         if merged.merge is not None:
             self.frames.merge(seg, *merged.merge)
         else:
-            loop = p.loop(view, seg, upd.nav.T_world_body, self.live.est.pose_covariance)
+            loop = p.loop(view, seg, upd.nav.T_world_body, self.live.est.pose_covariance, upd.index)
             self.outputs.add_events(loop.events)
             if loop.loop is not None:
                 upd, correction = self._close_loop(loop.loop, upd, correction)

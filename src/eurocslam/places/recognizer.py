@@ -146,11 +146,13 @@ class PlaceRecognizer:
         accept: Callable[[int], bool],
         points: Callable[[PlaceView], CandidatePoints],
         exclude_last: int = 0,
+        min_score: float = 0.0,
     ) -> PlaceMatch | None:
         """The best verified candidate among the keys `accept` admits (None: no place);
         `points(candidate view)`: its points and pose in the world the match is wanted in,
         asked for only when the descriptors match well enough for the geometry to be tried
-        (most candidates fail before: MH_04 replica, 738 of 847)."""
+        (most candidates fail before: MH_04 replica, 738 of 847). `min_score`: candidates
+        scoring lower are not verified (at least `places.min_score`)."""
         c = self.cfg
         for cand in self.db.query(
             query.bow,
@@ -158,7 +160,7 @@ class PlaceRecognizer:
             exclude=(query.key,),
             exclude_last=exclude_last,
             accept=accept,
-            min_score=c.min_score,
+            min_score=max(c.min_score, min_score),
         ):
             v = self._views[cand.key]
             m = self._timed(query, v, partial(points, v))
