@@ -4,6 +4,7 @@ Messages are decoded with rosbags' own humble definitions (a reader we did not w
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -186,3 +187,18 @@ def test_cached_encoding_equals_a_fresh_one(frame_id: str, color: tuple, ns: str
         assert drone_markers(frame_id, t, color, ns) == fresh
     msg = _decode(drone_markers(frame_id, T0 + 7, color, ns))
     assert {m.header.stamp.nanosec for m in msg.markers} == {(T0 + 7) % 1_000_000_000}
+
+
+def test_the_firefly_is_drawn_where_the_rig_is_its_vi_sensor() -> None:
+    """`output.drone_model: auto`: EuRoC's rig carries the Firefly; the same cameras moved by
+    5 cm on the body, or a rig without an IMU (a car's), do not."""
+    from eurocslam.dataset.calib import default_rig
+    from eurocslam.io.drone import flies_on
+
+    rig = default_rig()
+    assert flies_on(rig)
+    T = rig.cam0.T_body_cam.copy()
+    T[0, 3] += 0.05
+    moved = dataclasses.replace(rig, cam0=dataclasses.replace(rig.cam0, T_body_cam=T))
+    assert not flies_on(moved)
+    assert not flies_on(dataclasses.replace(rig, imu=None))

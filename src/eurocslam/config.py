@@ -183,6 +183,10 @@ class OutputConfig:
     landmarks_every_n_keyframes: int = 1  # /slam/landmarks rate
     draw_features: bool = True  # tracked features on the cam0 image (annotations)
     groundtruth_overlay: bool = True  # ground truth aligned at the first pose (position + yaw)
+    # the platform drawn on the estimate and the ground truth (/slam/drone, /groundtruth/drone):
+    # `firefly` (EuRoC's Asctec Firefly), `none`, or `auto`: the Firefly where the rig is the
+    # Firefly's VI-Sensor (EuRoC's camera placement), nothing on other rigs (a car, a handheld)
+    drone_model: str = "auto"
 
 
 @dataclass(frozen=True)
@@ -215,6 +219,7 @@ _CHOICES = {
     "init.mode": ("auto", "static", "dynamic"),
     "init.visual_world": ("camera_level", "body"),
     "backend.smoother": ("fixed_lag", "isam2"),
+    "output.drone_model": ("auto", "firefly", "none"),
 }
 
 

@@ -48,13 +48,3 @@ class VocabularyError(PlaceRecognitionError):
 class MapError(EurocSlamError):
     """A saved map (`OUT/map`) is missing, corrupt, of another version, or was built with another
     rig or vocabulary than the run that wants to use it."""
-
-
-def where(path: object, row: int | None = None, key: str | None = None) -> str:
-    """Format a location for error messages: 'path:row (key)'."""
-    s = str(path)
-    if row is not None:
-        s += f":{row}"
-    if key is not None:
-        s += f" ({key})"
-    return s

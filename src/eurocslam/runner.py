@@ -201,6 +201,7 @@ class _McapOutput:
         extra_sinks: Sequence[Sink],
     ) -> None:
         from eurocslam.convert import calibration_attachments
+        from eurocslam.io.drone import flies_on
         from eurocslam.io.mcap_writer import McapSink
         from eurocslam.io.sensor_streams import SensorStreams, StreamOptions
         from eurocslam.io.sink import TeeSink, ThreadedSink
@@ -235,7 +236,8 @@ class _McapOutput:
                 source.groundtruth,
                 cfg.output,
                 gravity_aligned=cfg.inertial,
-                drone_model=source.rig.imu is not None,
+                drone_model=cfg.output.drone_model == "firefly"
+                or (cfg.output.drone_model == "auto" and flies_on(source.rig)),
             )
         except BaseException:
             self.abort()

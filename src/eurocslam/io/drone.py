@@ -33,17 +33,17 @@ from functools import lru_cache
 
 import numpy as np
 
+from eurocslam.dataset.calib import StereoRig, default_rig
 from eurocslam.geometry import F64, make_T
 from eurocslam.io import cdr, ros2
 
-# visualization_msgs/Marker constants
-CUBE = 1
-SPHERE = 2
-CYLINDER = 3
-LINE_LIST = 5
-SPHERE_LIST = 7
-TRIANGLE_LIST = 11
-ADD = 0
+CUBE = ros2.MarkerType.CUBE
+SPHERE = ros2.MarkerType.SPHERE
+CYLINDER = ros2.MarkerType.CYLINDER
+LINE_LIST = ros2.MarkerType.LINE_LIST
+SPHERE_LIST = ros2.MarkerType.SPHERE_LIST
+TRIANGLE_LIST = ros2.MarkerType.TRIANGLE_LIST
+ADD = 0  # visualization_msgs/Marker action
 
 MSGTYPE = ros2.MARKER_ARRAY
 
@@ -278,3 +278,17 @@ def drone_markers(
     props = _props(t_ns, spin_hz)
     ros2.write_marker(out, _marker(frame_id, t_ns, ns, len(stamps), props, T_BODY_DRONE))
     return out.getvalue()
+
+
+def flies_on(rig: StereoRig) -> bool:
+    """The rig is the Firefly's VI-Sensor: EuRoC's camera placement on the IMU (cam0 within 1
+    cm and 1 deg of EuRoC's `T_BS`), which `output.drone_model: auto` draws the Firefly for."""
+    T_euroc = default_rig().cam0.T_body_cam
+    T = rig.cam0.T_body_cam
+    dR = T_euroc[:3, :3].T @ T[:3, :3]
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))))
+    return (
+        rig.imu is not None
+        and angle < 1.0
+        and float(np.linalg.norm(T[:3, 3] - T_euroc[:3, 3])) < 0.01
+    )

@@ -40,6 +40,7 @@ import json
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from enum import IntEnum
 from pathlib import Path
 
 import numpy as np
@@ -325,13 +326,38 @@ def point_stamped(t_ns: int, frame_id: str, p: ArrayLike) -> bytes:
 
 
 # ---- visualization ----------------------------------------------------------------------------
+class MarkerType(IntEnum):
+    """visualization_msgs/Marker `type`."""
+
+    ARROW = 0
+    CUBE = 1
+    SPHERE = 2
+    CYLINDER = 3
+    LINE_STRIP = 4
+    LINE_LIST = 5
+    CUBE_LIST = 6
+    SPHERE_LIST = 7
+    POINTS = 8
+    TEXT_VIEW_FACING = 9
+    MESH_RESOURCE = 10
+    TRIANGLE_LIST = 11
+
+
+class ImageMarkerType(IntEnum):
+    """visualization_msgs/ImageMarker `type`."""
+
+    CIRCLE = 0
+    LINE_STRIP = 1
+    LINE_LIST = 2
+    POLYGON = 3
+    POINTS = 4
+
+
 @dataclass(frozen=True)
 class Marker:
     """visualization_msgs/Marker fields that matter for drawing (texture and mesh are unused).
 
-    `type`: 0 ARROW, 1 CUBE, 2 SPHERE, 3 CYLINDER, 4 LINE_STRIP, 5 LINE_LIST, 6 CUBE_LIST,
-    7 SPHERE_LIST, 8 POINTS, 9 TEXT_VIEW_FACING, 10 MESH_RESOURCE, 11 TRIANGLE_LIST.
-    `action`: 0 ADD/MODIFY, 2 DELETE, 3 DELETEALL."""
+    `type`: a `MarkerType`. `action`: 0 ADD/MODIFY, 2 DELETE, 3 DELETEALL."""
 
     t_ns: int
     frame_id: str
@@ -404,7 +430,7 @@ def image_marker(
     *,
     ns: str = "",
     id: int = 0,
-    type: int = 4,
+    type: int = ImageMarkerType.POINTS,
     scale: float = 3.0,
     outline_color: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0),
     outline_colors: ArrayLike | None = None,
@@ -412,8 +438,8 @@ def image_marker(
 ) -> bytes:
     """visualization_msgs/ImageMarker in pixel coordinates of the image on `frame_id`.
 
-    `type`: 0 CIRCLE (at `position`, radius `scale`), 1 LINE_STRIP, 2 LINE_LIST, 3 POLYGON,
-    4 POINTS (`points_uv` (N, 2), size `scale`). `outline_colors` (N, 4) colours points one by
+    `type`: an `ImageMarkerType`: CIRCLE (at `position`, radius `scale`), ..., POINTS
+    (`points_uv` (N, 2), size `scale`). `outline_colors` (N, 4) colours points one by
     one. Foxglove's Image panel draws it over the image on the same topic namespace."""
     uv = np.asarray(points_uv, dtype=np.float64).reshape(-1, 2)
     pts = np.zeros((uv.shape[0], 3))

@@ -239,7 +239,13 @@ class SlamMcapWriter:
                 ros2.IMAGE_MARKER,
                 t,
                 ros2.image_marker(
-                    t, "cam0", fr.draw_uv, ns="features", type=4, scale=4.0, outline_colors=colors
+                    t,
+                    "cam0",
+                    fr.draw_uv,
+                    ns="features",
+                    type=ros2.ImageMarkerType.POINTS,
+                    scale=4.0,
+                    outline_colors=colors,
                 ),
             )
 
@@ -253,7 +259,7 @@ class SlamMcapWriter:
                     WORLD,
                     ns,
                     self._n_places,
-                    5,  # LINE_LIST
+                    ros2.MarkerType.LINE_LIST,
                     scale=(0.02, 0.0, 0.0),
                     color=PLACE_RGBA.get(ns, (1.0, 1.0, 1.0, 1.0)),
                     points=np.array([ev.p_query, ev.p_match]),
