@@ -124,7 +124,6 @@ class HealthConfig:
     max_lost_s_no_imu: float = 0.3  # no IMU and no tracking: reset sooner
     # stereo-inertial: the tracked pose may be this far from the IMU's prediction
     max_prediction_error_m: float = 1.0
-    min_tracked: int = 15  # fewer tracked landmarks counts as lost for the backend
     # after a loss past the prediction, the tracker's own search (no prior) must find this many
     # inliers (ORB-SLAM's relocalization bar); on a rendered blackout a 1.5 m wrong pose had 41
     # of 605 landmarks in view, the right one 160 of 596

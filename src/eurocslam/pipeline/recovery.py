@@ -58,16 +58,14 @@ class Recovery:
         return self.health.lost(self.lost_s(t_ns), imu_ok)
 
     def min_inliers(self, blind: bool) -> int:
-        """Inliers a tracked pose needs: `health.min_tracked`; blind (lost beyond what the
-        prediction is worth), the tracker's own recovery without a prior must convince at least
-        as much as a place match (`health.recover_min_inliers`, `places.min_inliers`)."""
-        hc = self.health.cfg
-        need = hc.min_tracked
-        if blind:
-            need = max(need, hc.recover_min_inliers)
-            if self.places is not None:
-                need = max(need, self.places.min_inliers)
-        return need
+        """Inliers a tracked pose needs beyond the tracker's own `frontend.min_tracked`: blind
+        (lost beyond what the prediction is worth), the tracker's recovery without a prior must
+        convince at least as much as a place match (`health.recover_min_inliers`,
+        `places.min_inliers`); else nothing more."""
+        if not blind:
+            return 0
+        need = self.health.cfg.recover_min_inliers
+        return max(need, self.places.min_inliers) if self.places is not None else need
 
     def plausible(self, t_ns: int, T_pred: F64, T_new: F64) -> Verdict:
         """`Health.motion` of a tracked or smoothed pose at `t_ns`."""
