@@ -306,7 +306,7 @@ def test_capped_observations_cover_the_image() -> None:
     uv[~corner, 1] = uv[~corner, 0] - 5.0
     init = InitialState(_ns(0.0), m.pose(0.0), _velocity(m, 0.0), BG, BA, "dynamic")
     est.initialize(init, o.ids, uv)
-    g = est._seg.graph
+    g = est.segment_graph.graph
     used = [g.at(i) for i in range(g.size())]
     used = [f for f in used if isinstance(f, gtsam.GenericStereoFactor3D)]
     assert len(used) == 40
@@ -329,7 +329,7 @@ def test_stereo_noise_follows_the_keypoint_scale() -> None:
     scale = 1.2 ** (np.arange(len(o.ids)) % 4)
     init = InitialState(_ns(0.0), m.pose(0.0), _velocity(m, 0.0), BG, BA, "dynamic")
     est.initialize(init, o.ids, o.uv, scale)
-    g = est._seg.graph
+    g = est.segment_graph.graph
     factors = [g.at(i) for i in range(g.size())]
     stereo = [f for f in factors if isinstance(f, gtsam.GenericStereoFactor3D)]
     assert len(stereo) == min(len(o.ids), cfg.backend.max_landmarks_per_keyframe)
@@ -351,7 +351,7 @@ def test_first_pose_prior_separates_tilt_from_yaw(mode: str) -> None:
     T = m.pose(0.0)  # a tilted, yawed body
     o = observe(T, random_landmarks(3000), st, pixel_sigma=0.5)
     est.initialize(InitialState(_ns(0.0), T, _velocity(m, 0.0), BG, BA, mode), o.ids, o.uv)
-    g = est._seg.graph
+    g = est.segment_graph.graph
     prior = next(g.at(i) for i in range(g.size()) if isinstance(g.at(i), gtsam.PriorFactorPose3))
     tilt = 0.05 if mode == "static" else 0.02
     for axis, sigma in ((0, tilt), (1, tilt), (2, 0.01)):
@@ -377,11 +377,13 @@ def test_final_batch_joins_a_landmark_the_smoother_let_go(monkeypatch: pytest.Mo
         return float(np.sqrt(np.mean(np.square(e)))), len(res.landmarks)
 
     _, est, _ = _run_sim(cfg, duration=12.0)
-    n_keys = est._lms.n
-    rekeyed = est._lms.gkey[:n_keys] != np.arange(n_keys)
+    n_keys = est.landmark_keys.n
+    rekeyed = est.landmark_keys.gkey[:n_keys] != np.arange(n_keys)
     assert rekeyed.sum() > 20  # landmarks the smoother marginalised and saw again
     joined, n_lms = final_rmse(est)
-    assert n_lms == len(est._lms.key_of) == n_keys - rekeyed.sum()  # one point per landmark
+    assert (
+        n_lms == len(est.landmark_keys.key_of) == n_keys - rekeyed.sum()
+    )  # one point per landmark
 
     orig = LandmarkKeys.new_key
 
@@ -411,17 +413,17 @@ def test_final_batch_takes_the_observations_beyond_the_smoother_cap() -> None:
         return online, float(np.sqrt(np.mean(np.square(e)))), est, len(res.landmarks)
 
     online_a, final_a, est_a, n_a = run(30)
-    assert not est_a._seg.final_only
+    assert not est_a.segment_graph.final_only
     online_b, final_b, est_b, n_b = run(10_000)
     np.testing.assert_array_equal(online_a, online_b)  # the smoother saw the same
-    extra = est_b._seg.final_only
+    extra = est_b.segment_graph.final_only
     assert len(extra) > 1000
     # measured: 27.5 -> 5.9 mm; the map gains the landmarks seen at least twice (93 -> 267)
     assert final_b < 0.5 * final_a, f"{final_b * 1e3:.2f} mm vs {final_a * 1e3:.2f} mm"
     assert n_b > 2 * n_a
-    seen_once = {g for _, g, *_ in extra if est_b._lms.nobs[g] == 1}
+    seen_once = {g for _, g, *_ in extra if est_b.landmark_keys.nobs[g] == 1}
     assert seen_once  # left out: a landmark and no constraint
-    gkeys = est_b._lms.gkey[: est_b._lms.n]
+    gkeys = est_b.landmark_keys.gkey[: est_b.landmark_keys.n]
     assert n_b == len({int(g) for g in gkeys} - seen_once)
     # a landmark the final batch took first and the smoother later: one variable (its first key)
     rekeyed = [g for _, g, *_ in extra if np.count_nonzero(gkeys == g) > 1]
@@ -438,13 +440,13 @@ def test_final_batch_loosens_an_imu_that_disagrees_with_the_vision(
     vision. Each round takes one iteration, then the batch converges at the last scale. A
     consistent IMU stays as it is."""
     caps: list[int] = []  # each Levenberg-Marquardt run's iteration cap
-    optimize = final_batch_module._optimize
+    optimize = final_batch_module.optimize
 
     def counting(graph, vals, params, kf):  # type: ignore[no-untyped-def]
         caps.append(params.getMaxIterations())
         return optimize(graph, vals, params, kf)
 
-    monkeypatch.setattr(final_batch_module, "_optimize", counting)
+    monkeypatch.setattr(final_batch_module, "optimize", counting)
     m = lissajous_motion(8.0)
 
     def final_rmse(est: KeyframeEstimator) -> tuple[float, ImuCheck]:

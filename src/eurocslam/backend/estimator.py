@@ -94,6 +94,17 @@ class KeyframeEstimator:
         # starts from a prior, the moved pose is as uncertain as the loop made it
         self._cov_offset = np.zeros((6, 6))
 
+    @property
+    def segment_graph(self) -> SegmentGraph:
+        """The segment's global graph as the final batch will take it (the estimator fills it;
+        read it)."""
+        return self._seg
+
+    @property
+    def landmark_keys(self) -> LandmarkKeys:
+        """The segment's landmarks: frontend ids, graph keys, latest positions (read it)."""
+        return self._lms
+
     # ---- setup ----------------------------------------------------------------------------------
     def _make_smoother(self) -> None:
         b = self.cfg.backend
@@ -157,7 +168,7 @@ class KeyframeEstimator:
         for key in (X(0), V(0), B(0)):
             stamps[key] = 0.0
         self._seg = SegmentGraph(kf_index0=0)
-        self._seg.kf_times.append(init.t_ns)
+        self._seg.add_keyframe(init.t_ns)
         self._state = NavEstimate(
             init.t_ns,
             np.asarray(init.T_world_body, float),
@@ -166,19 +177,9 @@ class KeyframeEstimator:
             np.asarray(init.ba, float),
         )
         self._reset_pim(init.t_ns, self._state)
-        added = self._obs.add(
-            0,
-            init.T_world_body,
-            landmark_ids,
-            stereo_uv,
-            stereo_sigma,
-            graph,
-            values,
-            stamps,
-            0.0,
-            self._seg.final_only,
-        )
-        self._update(graph, values, stamps, added)
+        added = self._obs.add(0, init.T_world_body, landmark_ids, stereo_uv, stereo_sigma, 0.0)
+        subst = self._take(added, graph, values, stamps)
+        self._update(graph, values, stamps, subst, added.anchors)
         return self._read_state(0, init.t_ns)
 
     # ---- IMU prediction ------------------------------------------------------------------------
@@ -274,24 +275,16 @@ class KeyframeEstimator:
         for key in (X(k), V(k), B(k)):
             stamps[key] = tk
         added = self._obs.add(
-            k,
-            T_guess,
-            landmark_ids,
-            stereo_uv,
-            stereo_sigma,
-            graph,
-            values,
-            stamps,
-            tk,
-            self._seg.final_only,
-            after_loss=pose_prior is not None,
+            k, T_guess, landmark_ids, stereo_uv, stereo_sigma, tk, after_loss=pose_prior is not None
         )
+        subst = self._take(added, graph, values, stamps)
+        anchors = list(added.anchors)
         n_known = added.n_factors - added.n_new
         if pose_prior is not None:
             # the smoother holds the keyframe where the map puts it; the final batch only
             # loosely (the online map has drifted; the landmarks seen again tie it precisely)
             T_prior = pose(pose_prior)
-            added.anchors.append(gtsam.PriorFactorPose3(X(k), T_prior, self._place_noise()))
+            anchors.append(gtsam.PriorFactorPose3(X(k), T_prior, self._place_noise()))
             graph.add(gtsam.PriorFactorPose3(X(k), T_prior, self._place_noise(25.0)))
         elif not imu_link and n_known < self.cfg.backend.min_obs_without_imu:
             if self._imu is not None or T_world_body_guess is None:
@@ -311,8 +304,8 @@ class KeyframeEstimator:
                 )
             )
         self._k = k
-        self._seg.kf_times.append(t_ns)
-        self._update(graph, values, stamps, added)
+        self._seg.add_keyframe(t_ns)
+        self._update(graph, values, stamps, subst, anchors)
         update = self._read_state(k, t_ns)
         self._reset_pim(t_ns, update.nav)
         return update
@@ -385,13 +378,10 @@ class KeyframeEstimator:
         tk = self._t(st.t_ns)
         stamps = {X(k): tk, V(k): tk, B(k): tk}
         # the old smoother's landmarks come back under new keys, anchored where they are now
-        lms = self._lms
-        act = np.nonzero(lms.active[: lms.n])[0]
-        lms.pos[act] = lms.pos[act] @ D[:3, :3].T + D[:3, 3]
-        lms.active[:] = False
+        self._lms.move_window_out(D)
         if loop is not None:
             self._loops.append(loop)
-            self._seg.graph.add(
+            self._seg.add_factor(
                 gtsam.BetweenFactorPose3(
                     X(loop.k_cand), X(loop.k_query), pose(loop.T_cand_query), self._place_noise()
                 )
@@ -437,21 +427,39 @@ class KeyframeEstimator:
             )
 
     # ---- smoother -------------------------------------------------------------------------------
+    def _take(
+        self,
+        added: StereoAdded,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        stamps: dict[int, float],
+    ) -> dict[int, gtsam.NonlinearFactor]:
+        """A keyframe's stereo observations into its graph, values and stamps, the final-batch
+        ones into the segment's graph; the global graph's substitutes by index in `graph`."""
+        base = graph.size()
+        for f in added.factors:
+            graph.add(f)
+        for key, p in added.new_points:
+            values.insert(key, gtsam.Point3(*p))
+        stamps.update(added.stamps)
+        self._seg.final_only.extend(added.final_only)
+        return {base + i: f for i, f in added.subst.items()}
+
     def _update(
         self,
         graph: gtsam.NonlinearFactorGraph,
         values: gtsam.Values,
         stamps: dict[int, float],
-        added: StereoAdded | None = None,
+        subst: dict[int, gtsam.NonlinearFactor] | None = None,
+        anchors: list[gtsam.NonlinearFactor] | None = None,
     ) -> None:
         """One smoother update with `graph`; the segment's global graph takes the same factors
-        (re-keyed where `added.subst` says) except the smoother-only anchors."""
-        subst = added.subst if added is not None else {}
+        (`subst`: instead, by index in `graph`), the smoother alone the `anchors`."""
+        subst = subst or {}
         for i in range(graph.size()):
-            self._seg.graph.add(subst.get(i, graph.at(i)))
-        if added is not None:
-            for f in added.anchors:
-                graph.add(f)
+            self._seg.add_factor(subst.get(i, graph.at(i)))
+        for f in anchors or ():
+            graph.add(f)
         self._update_smoother(graph, values, stamps)
 
     def _update_smoother(
@@ -504,9 +512,7 @@ class KeyframeEstimator:
                 np.asarray(b_kk.gyroscope()),
                 np.asarray(b_kk.accelerometer()),
             )
-            self._seg.values[X(kk)] = pose_kk
-            self._seg.values[V(kk)] = v_kk
-            self._seg.values[B(kk)] = b_kk
+            self._seg.set_state(kk, pose_kk, v_kk, b_kk)
         self._window = keep
         ids, xyz = self._lms.in_window()
         window = tuple((kk, self._kf_estimates[kk].T_world_body) for kk in keep)
@@ -539,14 +545,8 @@ class KeyframeEstimator:
         for k, e in self._kf_estimates.items():
             R = corr[k][:3, :3]
             self._kf_estimates[k] = NavEstimate(e.t_ns, new[k], R @ e.v_world, e.bg, e.ba)
-            self._seg.values[X(k)] = pose(new[k])
-            if V(k) in self._seg.values:
-                self._seg.values[V(k)] = R @ np.asarray(self._seg.values[V(k)])
-        lms = self._lms
-        for key in range(lms.n):
-            C = corr.get(int(lms.first_kf[key]))
-            if C is not None:
-                lms.pos[key] = C[:3, :3] @ lms.pos[key] + C[:3, 3]
+            self._seg.move_state(k, new[k], R)
+        self._lms.move_with_keyframes(corr)
         self._loops, self._before = [], {}
 
     def imu_bridge(
@@ -584,9 +584,4 @@ class KeyframeEstimator:
 
     def landmark_positions(self, ids: NDArray[np.int64]) -> F64:
         """The latest estimates (N, 3) of landmarks by frontend id (NaN: unknown here)."""
-        lms = self._lms
-        keys = np.array([lms.key_of.get(int(i), -1) for i in ids], dtype=np.int64)
-        out = np.full((len(keys), 3), np.nan)
-        ok = keys >= 0
-        out[ok] = lms.pos[keys[ok]]
-        return out
+        return self._lms.positions(ids)

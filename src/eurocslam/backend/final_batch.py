@@ -17,7 +17,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, L, V, X
 
-from eurocslam.backend.factors import ImuModel, StereoModel
+from eurocslam.backend.factors import ImuModel, StereoModel, pose
 from eurocslam.backend.landmarks import LandmarkKeys, landmark_indices
 from eurocslam.backend.preintegration import bias, integrate
 from eurocslam.backend.types import ImuCheck, NavEstimate
@@ -38,6 +38,25 @@ class SegmentGraph:
     # stereo observations beyond the smoother's cap, for the final batch:
     # (keyframe index, global landmark key, uL, uR, v, sigma scale)
     final_only: list[tuple[int, int, float, float, float, float]] = field(default_factory=list)
+
+    def add_keyframe(self, t_ns: int) -> None:
+        """The next keyframe's time."""
+        self.kf_times.append(t_ns)
+
+    def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
+        self.graph.add(factor)
+
+    def set_state(self, k: int, pose: gtsam.Pose3, v: Any, b: Any) -> None:
+        """Keyframe `k`'s latest estimate: pose, velocity, biases (gtsam values)."""
+        self.values[X(k)] = pose
+        self.values[V(k)] = v
+        self.values[B(k)] = b
+
+    def move_state(self, k: int, T_world_body: F64, R_new_old: F64) -> None:
+        """Keyframe `k` moved to `T_world_body`, its velocity turned by `R_new_old`."""
+        self.values[X(k)] = pose(T_world_body)
+        if V(k) in self.values:
+            self.values[V(k)] = R_new_old @ np.asarray(self.values[V(k)])
 
 
 @dataclass(frozen=True)
@@ -90,7 +109,7 @@ def final_batch(
     # the elimination order Levenberg-Marquardt would compute, once for every round (a
     # rescaled graph has the same structure)
     params.setOrdering(graph.orderingCOLAMD())
-    result = _optimize(graph, vals, params, kf_estimates)
+    result = optimize(graph, vals, params, kf_estimates)
     if result is None:
         return FinalBatchResult(poses, {}, positions, None)
     imu_check = None
@@ -128,7 +147,7 @@ def _final_graph(
     return graph
 
 
-def _optimize(
+def optimize(
     graph: gtsam.NonlinearFactorGraph,
     vals: gtsam.Values,
     params: gtsam.LevenbergMarquardtParams,
@@ -171,7 +190,7 @@ def _reweight_imu(
         for _ in range(REWEIGHT_ROUNDS):
             trial = scale * ratio
             g_trial = _imu_rescaled(seg, graph, groups.imu_at, imu, trial)
-            again = _optimize(g_trial, result, params, kf_estimates)
+            again = optimize(g_trial, result, params, kf_estimates)
             if again is None:
                 break
             scale, result, g = trial, again, g_trial
@@ -180,7 +199,7 @@ def _reweight_imu(
                 break
     finally:
         params.setMaxIterations(iterations)
-    final = None if g is graph else _optimize(g, result, params, kf_estimates)
+    final = None if g is graph else optimize(g, result, params, kf_estimates)
     if final is None:  # no round, or no convergence at the last scale: the batch before them
         return converged, ImuCheck(first, 1.0, math.nan)
     return final, ImuCheck(first, scale, groups.imu_ratio(g, final))

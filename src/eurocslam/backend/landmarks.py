@@ -78,6 +78,29 @@ class LandmarkKeys:
             self.active[idx] = True
             self.smoothed[idx] = True
 
+    def move_window_out(self, T_new_old: F64) -> None:
+        """The smoother that held the window is gone (a loop moved the estimate): its landmarks
+        move rigidly with the estimate and leave the window (they come back under new keys)."""
+        act = np.nonzero(self.active[: self.n])[0]
+        self.pos[act] = self.pos[act] @ T_new_old[:3, :3].T + T_new_old[:3, 3]
+        self.active[:] = False
+
+    def move_with_keyframes(self, T_new_old: dict[int, F64]) -> None:
+        """Every landmark moved with the correction of the keyframe that first saw it
+        (keyframe index -> correction; landmarks of other keyframes stay)."""
+        for key in range(self.n):
+            C = T_new_old.get(int(self.first_kf[key]))
+            if C is not None:
+                self.pos[key] = C[:3, :3] @ self.pos[key] + C[:3, 3]
+
+    def positions(self, fids: NDArray[np.int64]) -> F64:
+        """The latest positions (N, 3) of landmarks by frontend id (NaN: unknown here)."""
+        keys = np.array([self.key_of.get(int(i), -1) for i in fids], dtype=np.int64)
+        out = np.full((len(keys), 3), np.nan)
+        ok = keys >= 0
+        out[ok] = self.pos[keys[ok]]
+        return out
+
     def in_window(self) -> tuple[NDArray[np.int64], F64]:
         """Frontend ids and world positions of the landmarks in the smoother window."""
         act = np.nonzero(self.active[: self.n])[0]

@@ -24,15 +24,25 @@ from eurocslam.geometry import F64
 
 @dataclass(frozen=True)
 class StereoAdded:
-    """What `StereoObservations.add` put into a keyframe's graph: the factors the global graph takes
-    instead (by index in the graph: those of landmarks whose smoother key is not their first),
-    priors for the smoother alone (re-found landmarks anchored at their last position), the
-    number of stereo factors and of new landmarks."""
+    """A keyframe's stereo observations as `StereoObservations.add` turned them into graph
+    pieces: the stereo factors (in order), the new landmarks' initial positions and the
+    timestamps of every landmark it observes (new or re-observed), the factors the global graph
+    takes instead (by index in `factors`: those of landmarks whose smoother key is not their
+    first), priors for the smoother alone (re-found landmarks anchored at their last position),
+    observations beyond the smoother's cap for the final batch alone, and how many landmarks
+    are new."""
 
+    factors: list[gtsam.NonlinearFactor]
+    new_points: list[tuple[int, F64]]  # (gtsam key, initial position)
+    stamps: dict[int, float]
     subst: dict[int, gtsam.NonlinearFactor]
     anchors: list[gtsam.NonlinearFactor]
-    n_factors: int
+    final_only: list[tuple[int, int, float, float, float, float]]
     n_new: int
+
+    @property
+    def n_factors(self) -> int:
+        return len(self.factors)
 
 
 class StereoObservations:
@@ -53,16 +63,12 @@ class StereoObservations:
         landmark_ids: np.ndarray,
         stereo_uv: F64,
         stereo_sigma: F64 | None,
-        graph: gtsam.NonlinearFactorGraph,
-        values: gtsam.Values,
-        stamps: dict[int, float],
         tk: float,
-        final_only: list[tuple[int, int, float, float, float, float]],
         after_loss: bool = False,
     ) -> StereoAdded:
-        """Stereo factors of keyframe `k` into `graph` (new landmarks into `values` and
-        `stamps`), observations beyond the smoother's cap into `final_only`. `after_loss`: the
-        keyframe was found again after a loss; landmarks the smoother held before come first."""
+        """Keyframe `k`'s observations as graph pieces (`StereoAdded`), its landmarks stamped
+        at `tk`. `after_loss`: the keyframe was found again after a loss; landmarks the smoother
+        held before come first."""
         b = self.cfg
         st = self.stereo.geometry
         lms = self.lms
@@ -125,7 +131,11 @@ class StereoObservations:
             return T_world_rect0[:3, :3] @ Xc + T_world_rect0[:3, 3]
 
         n_new = 0
+        factors: list[gtsam.NonlinearFactor] = []
+        new_points: list[tuple[int, F64]] = []
+        stamps: dict[int, float] = {}
         subst: dict[int, gtsam.NonlinearFactor] = {}
+        final_only: list[tuple[int, int, float, float, float, float]] = []
         for i in idx.tolist():
             fid = int(ids[i])
             key_i = lms.key_of.get(fid)
@@ -133,7 +143,7 @@ class StereoObservations:
                 old = key_i
                 key_i = lms.new_key(fid, k)
                 Xw = world_point(i)
-                values.insert(L(key_i), gtsam.Point3(*Xw))
+                new_points.append((L(key_i), Xw))
                 lms.pos[key_i] = Xw
                 n_new += 1
                 if anchor is not None and old is not None and lms.smoothed[old]:
@@ -143,8 +153,8 @@ class StereoObservations:
             gkey = int(lms.gkey[key_i])
             lms.nobs[gkey] += 1
             if gkey != key_i:
-                subst[graph.size()] = self.stereo.factor(k, gkey, *obs)
-            graph.add(self.stereo.factor(k, key_i, *obs))
+                subst[len(factors)] = self.stereo.factor(k, gkey, *obs)
+            factors.append(self.stereo.factor(k, key_i, *obs))
         # beyond the smoother's cap: observations for the final batch alone. A landmark not yet
         # known gets a key that the smoother never holds (it re-keys it if it picks it later)
         for i in extra.tolist():
@@ -157,4 +167,4 @@ class StereoObservations:
             gkey = int(lms.gkey[key_i])
             lms.nobs[gkey] += 1
             final_only.append((k, gkey, uv[i, 0], uv[i, 1], uv[i, 2], scale[i]))
-        return StereoAdded(subst, anchors, len(idx), n_new)
+        return StereoAdded(factors, new_points, stamps, subst, anchors, final_only, n_new)
