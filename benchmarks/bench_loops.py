@@ -64,18 +64,18 @@ def run(seq_path: Path, cfg: dict[str, object]) -> tuple[list[dict[str, Any]], d
     loop = place_stage.PlaceStage.loop
     find = place_stage.PlaceStage._find
 
-    def watched_loop(self, view, segment, T_seg_query, cov_query=None):  # type: ignore[no-untyped-def]
+    def watched_loop(self, view, segment, T_seg_query, *args, **kwargs):  # type: ignore[no-untyped-def]
         seen = []
 
-        def watched_find(v, accept):  # type: ignore[no-untyped-def]
-            m = find(self, v, accept)
+        def watched_find(v, accept, *a, **kw):  # type: ignore[no-untyped-def]
+            m = find(self, v, accept, *a, **kw)
             seen.append(m)
             return m
 
         self._find = watched_find
         n_events = len(self.events)
         try:
-            fix = loop(self, view, segment, T_seg_query, cov_query)
+            fix = loop(self, view, segment, T_seg_query, *args, **kwargs)
         finally:
             del self._find
         gated = [e for e in self.events[n_events:] if e.gate_chi2 == e.gate_chi2]
