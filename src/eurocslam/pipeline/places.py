@@ -359,9 +359,9 @@ class PlaceStage:
         cm, cd = _size(D)
         if cm < c.loop_min_correction_m and cd < c.loop_min_correction_deg:
             # the drift the loop can tell, within its own error, is too small to act on
-            small = (chi2, False, dm, dd)
+            kept = (chi2, False, dm, dd)
             return PlaceAnswer(
-                (self._event(PlaceKind.LOOP, view, segment, m, p_q, 0.0, 0.0, *small),)
+                (self._event(PlaceKind.LOOP, view, segment, m, p_q, 0.0, 0.0, *kept),)
             )
         fix = LoopFix(
             m,
