@@ -11,8 +11,9 @@ from eurocslam.dataset.calib import default_rig
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import image_problem
 from eurocslam.frontend.features import Features, OrbExtractor, hamming
+from eurocslam.frontend.local_map import LocalMap
+from eurocslam.frontend.pose_solver import optimize_pose, pnp_ransac
 from eurocslam.frontend.stereo import StereoRectifier, undistort_points
-from eurocslam.frontend.tracking import LocalMap, optimize_pose, pnp_ransac
 from eurocslam.geometry import inv_T, make_T, rotation_angle, so3_exp
 
 

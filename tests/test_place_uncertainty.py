@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from eurocslam.camera import RectifiedStereo, project_rect, triangulate_rect
-from eurocslam.frontend.tracking import optimize_pose
+from eurocslam.frontend.pose_solver import optimize_pose
 from eurocslam.geometry import F64, inv_T, make_T, se3_log, so3_exp
 from eurocslam.places.uncertainty import match_covariance, stereo_point_cov
 

@@ -12,7 +12,8 @@ import pytest
 from eurocslam.config import PlacesConfig
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.extraction import Extractor, pyramid_scales
+from eurocslam.frontend.extraction import Extractor
+from eurocslam.frontend.projection import pyramid_scales
 from eurocslam.geometry import inv_T, se3_log
 from eurocslam.pipeline.frames import WorldFrames
 from eurocslam.pipeline.places import PlaceStage

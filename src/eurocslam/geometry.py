@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 F64 = NDArray[np.float64]
+_I3 = np.eye(3)
 
 
 def wxyz_to_xyzw(q: F64) -> F64:
@@ -120,6 +121,28 @@ def inv_T(T: F64) -> F64:
     rt = np.swapaxes(r, -1, -2)
     t = T[..., :3, 3]
     return make_T(rt, -np.einsum("...ij,...j->...i", rt, t))
+
+
+def rigid(T: F64) -> F64:
+    """The nearest rigid transform: rotation projected onto SO(3) (SVD), bottom row exact.
+
+    Every pose entering or leaving tracking passes through here: a rotation that is slightly
+    off SO(3) makes `inv_T` (a transpose) an inexact inverse, and compositions amplify it.
+    """
+    T = np.asarray(T, dtype=np.float64)
+    R = T[:3, :3]
+    if (
+        np.abs(R.T @ R - _I3).max() < 1e-12
+        and T[3, 3] == 1.0
+        and not T[3, :3].any()
+        and np.linalg.det(R) > 0
+    ):
+        return cast(F64, T.copy())  # already rigid to round-off: skip the SVD (hot path)
+    u, _, vt = np.linalg.svd(R)
+    R = u @ vt
+    if np.linalg.det(R) < 0:
+        R = u @ np.diag([1.0, 1.0, -1.0]) @ vt
+    return make_T(R, T[:3, 3])
 
 
 def extrapolate(Ta: F64, Tb: F64, s: float) -> F64:

@@ -45,7 +45,7 @@ class FrontendConfig:
     subpixel_half_window: int = 5  # SAD patch half size for sub-pixel disparity
     subpixel_search_px: int = 5  # +- search range of the SAD refinement
 
-    # ---- temporal tracking (tracking.py) -------------------------------------------------
+    # ---- temporal tracking (tracker.py) ---------------------------------------------------
     # projection search radius, as an angle (the prediction's error is angular): x fx gives
     # pixels (1.3 deg: 9.9 px on EuRoC's 436 px focal length, 16 px on KITTI's 719), times the
     # keypoint's octave scale

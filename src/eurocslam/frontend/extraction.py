@@ -22,13 +22,8 @@ from eurocslam.dataset.types import U8, StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.features import Features, OrbExtractor
 from eurocslam.frontend.matching import StereoMatches, match_stereo
+from eurocslam.frontend.projection import pyramid_scales
 from eurocslam.frontend.stereo import StereoRectifier
-from eurocslam.geometry import F64
-
-
-def pyramid_scales(config: FrontendConfig) -> F64:
-    """The scale of each ORB pyramid level (1 at full resolution)."""
-    return np.asarray(config.orb_scale_factor ** np.arange(config.orb_levels), dtype=np.float64)
 
 
 def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:

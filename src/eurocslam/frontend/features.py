@@ -86,7 +86,6 @@ class OrbExtractor:
             if config.min_fast_threshold < config.fast_threshold
             else None
         )
-        self.scale_factors = config.orb_scale_factor ** np.arange(config.orb_levels)
 
     def extract(self, img: U8) -> Features:
         """Keypoints and descriptors in one pass over one image pyramid (detecting, then

@@ -21,6 +21,7 @@ from eurocslam.camera import RectifiedStereo
 from eurocslam.dataset.types import U8
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.features import Features, hamming
+from eurocslam.frontend.projection import octave_sigma
 from eurocslam.geometry import F64
 
 
@@ -62,7 +63,7 @@ def candidate_pairs(
     vR = right.uv[:, 1]
     order = np.argsort(vR, kind="stable")
     vRs = vR[order]
-    tol = config.stereo_row_tolerance_px * scale[left.octave]
+    tol = config.stereo_row_tolerance_px * octave_sigma(scale, left.octave)
     vL = left.uv[:, 1]
     lo = np.searchsorted(vRs, vL - tol, side="left")
     hi = np.searchsorted(vRs, vL + tol, side="right")

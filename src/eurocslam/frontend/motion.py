@@ -5,8 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from eurocslam.frontend.tracking import rigid
-from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
+from eurocslam.geometry import F64, inv_T, make_T, rigid, so3_exp, so3_log
 
 
 class VelocityModel:

@@ -14,29 +14,39 @@ from __future__ import annotations
 
 import time
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from eurocslam.camera import RectifiedStereo, triangulate_rect
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.extraction import FrameFeatures, pyramid_scales
+from eurocslam.frontend.extraction import FrameFeatures
 from eurocslam.frontend.features import Features
+from eurocslam.frontend.local_map import CullRules, LocalMap
 from eurocslam.frontend.motion import VelocityModel
-from eurocslam.frontend.stereo import StereoRectifier
-from eurocslam.frontend.tracking import (
-    LocalMap,
+from eurocslam.frontend.pose_solver import optimize_pose, pose_from_descriptors
+from eurocslam.frontend.projection import (
     body_T_from_rect,
-    optimize_pose,
-    pnp_ransac,
+    octave_sigma,
     project_map,
+    pyramid_scales,
     rect_T_from_body,
-    rigid,
     search_by_projection,
 )
-from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState
-from eurocslam.geometry import F64, inv_T
+from eurocslam.frontend.stereo import StereoRectifier
+from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState, TrackPath
+from eurocslam.geometry import F64, inv_T, rigid
+from eurocslam.timebase import ns_to_s, s_to_ns
+
+# the projection search's window, in `track_radius_deg`s
+WINDOW_NO_PRIOR = 1.5  # the first pass without the caller's prediction (constant velocity)
+WINDOW_WIDE = 3.0  # the second try when the first finds too few
+WINDOW_REFINE = 0.5  # the last pass, at the refined pose
+REFINE_MIN_KEPT = 0.8  # the last pass stands when it keeps this share of the inliers before
+# the descriptor path (no prior): best under this times the second best; stricter than the
+# projection search's `track_ratio`, which only compares keypoints near the prediction
+DESCRIPTOR_RATIO = 0.8
+PARALLAX_MIN_SEEN = 10  # tracked landmarks seen at the last keyframe to measure the parallax
 
 
 class StereoTracker:
@@ -46,7 +56,6 @@ class StereoTracker:
         self,
         rectifier: StereoRectifier,
         config: FrontendConfig | None = None,
-        T_world_body_init: F64 | None = None,
         first_landmark_id: int = 0,
     ) -> None:
         self.config = config or FrontendConfig()
@@ -58,9 +67,15 @@ class StereoTracker:
         self._track_radius_px = fx * np.radians(self.config.track_radius_deg)
         self._reuse_radius_px = fx * np.radians(self.config.reuse_radius_deg)
         self._kf_parallax_px = fx * np.radians(self.config.kf_parallax_deg)
-        self._max_unseen_ns = round(self.config.landmark_max_unseen_s * 1e9)
-        self.map = LocalMap(first_landmark_id, self.config.archive_max_landmarks)
-        self._T_init = None if T_world_body_init is None else np.asarray(T_world_body_init, float)
+        c = self.config
+        self._cull_rules = CullRules(
+            s_to_ns(c.landmark_max_unseen_s),
+            c.landmark_min_visible_for_ratio,
+            c.landmark_min_found_ratio,
+            c.max_landmarks,
+            c.archive_min_found if c.reuse_map else None,
+        )
+        self.map = LocalMap(first_landmark_id, c.archive_max_landmarks)
         self._motion = VelocityModel(
             self.config.max_velocity_m_s, self.config.max_angular_velocity_rad_s
         )
@@ -81,22 +96,9 @@ class StereoTracker:
     def rectified(self) -> RectifiedStereo:
         return self._rectifier.geometry
 
-    def predict(self, t_ns: int) -> F64 | None:
-        """Constant-velocity prediction of T_world_body at t_ns (None before the first pose)."""
-        return self._motion.predict(t_ns)
-
-    @property
-    def state_initialized(self) -> bool:
-        return self._initialized
-
     def landmark_positions(self, ids: NDArray[np.int64]) -> F64:
         """World positions (N, 3) of landmark ids; NaN rows for ids no longer in the map."""
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
-        rows = self.map.index_of(ids)
-        out = np.full((ids.size, 3), np.nan)
-        ok = rows >= 0
-        out[ok] = self.map.xyz[rows[ok]]
-        return out
+        return self.map.positions(ids)
 
     def apply(self, correction: MapCorrection) -> None:
         """Adopt the backend's correction of the *last processed frame*: its pose, then a rigid
@@ -104,18 +106,10 @@ class StereoTracker:
         (unknown ids and non-finite positions are ignored)."""
         c = correction
         self._adopt_pose(c.T_world_body)
-        if c.T_new_old is not None and len(self.map):
-            D = c.T_new_old
-            moved = self.map.xyz @ D[:3, :3].T + D[:3, 3]
-            ok = np.all(np.isfinite(moved), axis=1)
-            self.map.xyz[ok] = moved[ok]
-        if c.landmark_ids is None or c.landmark_xyz is None:
-            return
-        ids = np.asarray(c.landmark_ids, dtype=np.int64).reshape(-1)
-        xyz = np.asarray(c.landmark_xyz, dtype=np.float64).reshape(-1, 3)
-        rows = self.map.index_of(ids)
-        ok = (rows >= 0) & np.all(np.isfinite(xyz), axis=1)
-        self.map.xyz[rows[ok]] = xyz[ok]
+        if c.T_new_old is not None:
+            self.map.move_all(c.T_new_old)
+        if c.landmark_ids is not None and c.landmark_xyz is not None:
+            self.map.set_positions(c.landmark_ids, c.landmark_xyz)
 
     def _adopt_pose(self, T_world_body: F64) -> None:
         T_new = rigid(np.asarray(T_world_body, dtype=np.float64))
@@ -168,14 +162,14 @@ class StereoTracker:
             if may_restart and self._lost_count >= self.config.reinit_after_lost_frames:
                 # re-create the map from stereo at the best available pose
                 return self._initialize(ff, pred, timings, t0, reinit=True)
-            return self._result(ff, TrackingState.LOST, None, timings, t0, track_path="lost")
+            return self._result(
+                ff, TrackingState.LOST, None, timings, t0, track_path=TrackPath.LOST
+            )
         self._lost_count = 0
         self._motion.update(ff.t_ns, T_world_body)
         self.last_T_world_body = T_world_body
         m = self.map
-        m.n_found[inlier_rows] += 1
-        m.last_seen[inlier_rows] = ff.t_ns
-        m.desc[inlier_rows] = ff.left.desc[inlier_kps]
+        m.mark_found(inlier_rows, ff.t_ns, ff.left.desc[inlier_kps])
         is_kf = keyframe_allowed and self._need_keyframe(ff, inlier_rows, inlier_kps)
         ids = m.ids[inlier_rows]
         obs_kps = inlier_kps
@@ -189,11 +183,10 @@ class StereoTracker:
             new_ids, new_kps = self._create_landmarks(ff, T_world_body, used)
             ids = np.concatenate([ids, old_ids, new_ids])
             obs_kps = np.concatenate([inlier_kps, old_kps, new_kps])
-            m.kf_uv[:] = np.nan
-            m.kf_uv[m.index_of(ids)] = ff.left.uv[obs_kps]
+            m.set_keyframe_view(ids, ff.left.uv[obs_kps])
             self._last_kf_t_ns = ff.t_ns
             self._ref_kf_tracked = n_tracked
-        self._cull()
+        m.cull(self._t_ns, self._cull_rules)
         return self._result(
             ff,
             TrackingState.OK,
@@ -231,12 +224,7 @@ class StereoTracker:
         t0: float,
         reinit: bool = False,
     ) -> FrontendResult:
-        if pred is not None:
-            T_world_body = pred
-        elif self._T_init is not None:
-            T_world_body = self._T_init
-        else:
-            T_world_body = np.eye(4)
+        T_world_body = pred if pred is not None else np.eye(4)
         n_stereo = int(ff.stereo.valid.sum())
         if n_stereo < self.config.min_tracked:
             # too few stereo points to start a map: keep waiting (pose unknown when lost)
@@ -244,15 +232,12 @@ class StereoTracker:
             return self._result(ff, state, None, timings, t0)
         # a new map: the old one's reliable landmarks wait in the archive (map reuse finds them
         # again where the new map meets the old one), the rest go
-        m = self.map
-        if self.config.reuse_map and len(m):
-            m.retire(m.n_found >= self.config.archive_min_found)
-        m.keep(np.zeros(len(m), dtype=bool))
+        self.map.restart(self._cull_rules.archive_min_found)
         self._motion.reset_motion()
         ids, kps = self._create_landmarks(
             ff, T_world_body, np.zeros(len(ff.left), dtype=bool), limit=None
         )
-        self.map.kf_uv[:] = ff.left.uv[kps]
+        self.map.set_keyframe_view(ids, ff.left.uv[kps])
         self._initialized = True
         self._lost_count = 0
         self._motion.update(ff.t_ns, T_world_body)
@@ -354,48 +339,50 @@ class StereoTracker:
         have_pred: bool,
         timings: dict[str, float],
         min_inliers: int,
-    ) -> tuple[F64 | None, NDArray[np.intp], NDArray[np.intp], str]:
+    ) -> tuple[F64 | None, NDArray[np.intp], NDArray[np.intp], TrackPath]:
         """The pose of this frame against the local map, its inlier rows and keypoints, and the
-        path that found it: `projection` (the map projected with the predicted pose, a window of
-        `track_radius_deg`), `projection_wide` (3x the window), `descriptor` (no prior: the
-        frame's descriptors matched against the whole local map, PnP RANSAC on the matches,
-        then the projection at that pose) or `lost` (fewer than `min_inliers`)."""
+        path that found it: PROJECTION (the map projected with the predicted pose, a window of
+        `track_radius_deg`), PROJECTION_WIDE (`WINDOW_WIDE` times the window), DESCRIPTOR (no
+        prior: the frame's descriptors matched against the whole local map, PnP RANSAC on the
+        matches, then the projection at that pose) or LOST (fewer than `min_inliers`)."""
         c, g, m = self.config, self.rectified, self.map
         empty = np.zeros(0, np.intp)
         if len(m) == 0 or len(ff.left) == 0:
-            return None, empty, empty, "lost"
+            return None, empty, empty, TrackPath.LOST
         tree = cKDTree(ff.left.uv)
-        sigma_all = self.scale[np.clip(ff.left.octave, 0, self.scale.size - 1)]
+        sigma_all = octave_sigma(self.scale, ff.left.octave)
         T_pred_rc = rect_T_from_body(pred, self._T_body_rect0)
         # predicted-visible statistics for culling
         proj = project_map(T_pred_rc, m.xyz, g)
-        m.n_visible[proj.in_view] += 1
+        m.mark_visible(proj.in_view)
         t0 = time.perf_counter()
         pnp_ms = 0.0
         radius = self._track_radius_px
         # pass 1: at the prediction (wider window without an external prediction)
-        r1 = radius * (1.0 if have_pred else 1.5)
-        path = "projection"
+        r1 = radius * (1.0 if have_pred else WINDOW_NO_PRIOR)
+        path = TrackPath.PROJECTION
         T_rc, rows, kps, n_match = self._match_and_optimize(ff, tree, T_pred_rc, r1, sigma_all)
         if rows.size < c.min_tracked:
-            path = "projection_wide"
+            path = TrackPath.PROJECTION_WIDE
             T_rc, rows, kps, n_match = self._match_and_optimize(
-                ff, tree, T_pred_rc, 3.0 * radius, sigma_all
+                ff, tree, T_pred_rc, WINDOW_WIDE * radius, sigma_all
             )
         if rows.size < max(c.min_tracked, n_match // 2):
             # verify / recover without the prior: descriptor matching + PnP RANSAC
             tp = time.perf_counter()
-            T_pnp = self._relocalize(ff, T_pred_rc)
+            T_pnp = self._pose_from_descriptors(ff)
             pnp_ms += (time.perf_counter() - tp) * 1e3
             if T_pnp is not None:
                 T2, rows2, kps2, _ = self._match_and_optimize(ff, tree, T_pnp, radius, sigma_all)
                 if rows2.size > rows.size:
-                    T_rc, rows, kps, path = T2, rows2, kps2, "descriptor"
+                    T_rc, rows, kps, path = T2, rows2, kps2, TrackPath.DESCRIPTOR
         if rows.size < c.min_tracked:
             return self._lost(timings, t0, pnp_ms)
         # pass 2: refined pose, tight window, every visible landmark
-        T2, rows2, kps2, _ = self._match_and_optimize(ff, tree, T_rc, 0.5 * radius, sigma_all)
-        if rows2.size >= rows.size * 0.8 and rows2.size >= c.min_tracked:
+        T2, rows2, kps2, _ = self._match_and_optimize(
+            ff, tree, T_rc, WINDOW_REFINE * radius, sigma_all
+        )
+        if rows2.size >= rows.size * REFINE_MIN_KEPT and rows2.size >= c.min_tracked:
             T_rc, rows, kps = T2, rows2, kps2
         if rows.size < min_inliers:
             return self._lost(timings, t0, pnp_ms)
@@ -405,41 +392,27 @@ class StereoTracker:
     @staticmethod
     def _lost(
         timings: dict[str, float], t0: float, pnp_ms: float
-    ) -> tuple[None, NDArray[np.intp], NDArray[np.intp], str]:
+    ) -> tuple[None, NDArray[np.intp], NDArray[np.intp], TrackPath]:
         _record_time(timings, t0, pnp_ms)
         empty = np.zeros(0, np.intp)
-        return None, empty, empty, "lost"
+        return None, empty, empty, TrackPath.LOST
 
-    def _relocalize(self, ff: FrameFeatures, T_guess_rc: F64) -> F64 | None:
-        """Match frame descriptors to every local-map landmark (ratio test), PnP RANSAC."""
+    def _pose_from_descriptors(self, ff: FrameFeatures) -> F64 | None:
+        """The frame's pose (T_rect0_world) without a prior: its descriptors matched to every
+        local-map landmark, PnP RANSAC (not place recognition's relocalization: this map only)."""
         c, m = self.config, self.map
-        if len(m) < 6 or len(ff.left) < 6:
-            return None
-        bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-        knn = bf.knnMatch(ff.left.desc, m.desc, k=2)
-        q, t = [], []
-        for pair in knn:
-            if (
-                len(pair) == 2
-                and pair[0].distance < 0.8 * pair[1].distance
-                and (pair[0].distance <= c.track_max_hamming)
-            ):
-                q.append(pair[0].queryIdx)
-                t.append(pair[0].trainIdx)
-        if len(q) < c.min_tracked:
-            return None
-        qi, ti = np.array(q), np.array(t)
-        T, inl = pnp_ransac(
-            m.xyz[ti],
-            ff.left.uv[qi],
+        return pose_from_descriptors(
+            ff.left.desc,
+            ff.left.uv,
+            m.xyz,
+            m.desc,
             self.rectified,
-            None,
+            DESCRIPTOR_RATIO,
+            c.track_max_hamming,
+            c.min_tracked,
             c.pnp_reprojection_px,
             c.pnp_iterations,
         )
-        if T is None or inl.sum() < c.min_tracked:
-            return None
-        return T
 
     def _reuse(
         self, ff: FrameFeatures, T_world_body: F64, used: NDArray[np.bool_]
@@ -488,40 +461,17 @@ class StereoTracker:
         n = rows.size
         if self._last_kf_t_ns is None:
             return True
-        if (ff.t_ns - self._last_kf_t_ns) * 1e-9 >= c.kf_max_interval_s:
+        if ns_to_s(ff.t_ns - self._last_kf_t_ns) >= c.kf_max_interval_s:
             return True
         if n < c.kf_min_tracked or n < c.kf_min_tracked_ratio * self._ref_kf_tracked:
             return True
         kf_uv = self.map.kf_uv[rows]
         seen = np.all(np.isfinite(kf_uv), axis=1)
-        if seen.sum() >= 10:
+        if seen.sum() >= PARALLAX_MIN_SEEN:
             shift = np.linalg.norm(ff.left.uv[kps[seen]] - kf_uv[seen], axis=1)
             if float(np.median(shift)) > self._kf_parallax_px:
                 return True
         return False
-
-    def _cull(self) -> None:
-        c, m = self.config, self.map
-        if len(m) == 0:
-            return
-        keep = (self._t_ns - m.last_seen) <= self._max_unseen_ns
-        ratio_bad = (m.n_visible >= c.landmark_min_visible_for_ratio) & (
-            m.n_found < c.landmark_min_found_ratio * m.n_visible
-        )
-        keep &= ~ratio_bad
-        if keep.sum() > c.max_landmarks:
-            # keep the most recently seen
-            idx = np.nonzero(keep)[0]
-            order = np.argsort(-m.last_seen[idx], kind="stable")
-            keep[:] = False
-            keep[idx[order[: c.max_landmarks]]] = True
-        if keep.all():
-            return
-        if c.reuse_map:  # reliable landmarks that went unseen wait in the archive
-            retire = ~keep & ~ratio_bad & (m.n_found >= c.archive_min_found)
-            m.retire(retire)
-            keep = keep[~retire]
-        m.keep(keep)
 
     def _result(
         self,
@@ -537,7 +487,7 @@ class StereoTracker:
         n_tracked: int = 0,
         obs_kps: NDArray[np.intp] | None = None,
         n_reused: int = 0,
-        track_path: str = "",
+        track_path: TrackPath | None = None,
     ) -> FrontendResult:
         t_draw = time.perf_counter()
         draw = self._rectifier.rect0_to_raw(ff.left.uv) if len(ff.left) else np.zeros((0, 2))
@@ -561,7 +511,7 @@ class StereoTracker:
             stereo_sigma=(
                 np.zeros(0)
                 if obs_kps is None
-                else self.scale[np.clip(ff.left.octave[obs_kps], 0, self.scale.size - 1)]
+                else octave_sigma(self.scale, ff.left.octave[obs_kps])
             ),
             descriptors=(np.zeros((0, 32), np.uint8) if obs_kps is None else ff.left.desc[obs_kps]),
             octaves=np.zeros(0, np.int32) if obs_kps is None else ff.left.octave[obs_kps],

@@ -24,6 +24,17 @@ class TrackingState(str, Enum):
     NO_IMAGE = "NO_IMAGE"  # blank, saturated or missing image(s)
 
 
+class TrackPath(str, Enum):
+    """How a frame's pose was found (summary.json `track_paths` counts them)."""
+
+    PROJECTION = "projection"  # the map projected with the predicted pose
+    PROJECTION_WIDE = "projection_wide"  # the same in a wider window
+    DESCRIPTOR = "descriptor"  # descriptors against the whole local map, PnP RANSAC
+    LOST = "lost"  # too few inliers
+    IMU_BETWEEN = "imu_between"  # not tracked (frontend.track_every): the IMU's pose
+    VO_BETWEEN = "vo_between"  # the same in a dynamic start's VO window: extrapolated VO
+
+
 @dataclass(frozen=True)
 class FrontendResult:
     """Everything the frontend knows about one stereo frame."""
@@ -40,9 +51,9 @@ class FrontendResult:
     n_stereo: int  # of which stereo-matched
     n_tracked: int  # landmarks tracked (PnP inliers)
     n_reused: int = 0  # archived landmarks re-found at this keyframe (map reuse)
-    # how the pose was found: projection | projection_wide | descriptor | lost ("": not tracked
-    # against a map: the first frame, a new map, no image)
-    track_path: str = ""
+    # how the pose was found (None: not tracked against a map: the first frame, a new map, no
+    # image)
+    track_path: TrackPath | None = None
     # 2D points in *raw* (unrectified) cam0 pixels for drawing: (M, 2), and whether tracked
     draw_uv: F64 = field(default_factory=lambda: np.zeros((0, 2)))
     draw_tracked: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, dtype=bool))

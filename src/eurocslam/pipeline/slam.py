@@ -32,7 +32,7 @@ from eurocslam.errors import ConfigError
 from eurocslam.frontend.extraction import SKIPPED, FrameFeatures
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.tracker import StereoTracker
-from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState
+from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState, TrackPath
 from eurocslam.geometry import F64, inv_T
 from eurocslam.maps.store import SavedMap
 from eurocslam.pipeline.active import ActiveSegment
@@ -50,7 +50,7 @@ from eurocslam.pipeline.recovery import LostAction, Recovery
 from eurocslam.pipeline.segments import Segment
 from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
-from eurocslam.pipeline.summary import IMU_BETWEEN, VO_BETWEEN, RunSummary
+from eurocslam.pipeline.summary import RunSummary
 from eurocslam.places.loop_gate import yaw_and_translation
 from eurocslam.timebase import ns_to_s
 
@@ -233,11 +233,11 @@ class SlamPipeline:
             T_vo = self.live.startup.between(t)
             if T_vo is not None:
                 self.live.record(t, T_vo, -1)
-            self.summary.count_path(VO_BETWEEN)
+            self.summary.count_path(TrackPath.VO_BETWEEN)
             return self._emit(t, PipelineState.INIT, T_vo, None, left_out=True)
         T = self.live.between(t)
         self.live.record(t, T)
-        self.summary.count_path(IMU_BETWEEN)
+        self.summary.count_path(TrackPath.IMU_BETWEEN)
         return self._emit(t, PipelineState.TRACKING, T, None, self.live.nav, left_out=True)
 
     # ---- INIT -----------------------------------------------------------------------------------

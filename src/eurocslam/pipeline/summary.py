@@ -11,6 +11,7 @@ import numpy as np
 
 from eurocslam.backend.types import ImuCheck
 from eurocslam.frontend.stream import ExtractionCost
+from eurocslam.frontend.types import TrackPath
 from eurocslam.memory import peak_rss_mb, usable_cores
 from eurocslam.pipeline.records import FrameOutput, PlaceEvent, PlaceKind
 
@@ -29,11 +30,6 @@ def cpu_seconds() -> float:
 def _finite(x: float) -> float | None:
     """Rounded for JSON; NaN (not measured) as null."""
     return None if math.isnan(x) else round(x, 3)
-
-
-IMU_BETWEEN = "imu_between"  # not tracked (frontend.track_every): the IMU's pose
-VO_BETWEEN = "vo_between"  # the same in a dynamic start's VO window: extrapolated VO
-TRACK_PATHS = ("projection", "projection_wide", "descriptor", "lost", IMU_BETWEEN, VO_BETWEEN)
 
 
 # summary.json `places`: the events by kind
@@ -82,9 +78,9 @@ class RunSummary:
     def add_time(self, stage: str, ms: float) -> None:
         self.timings_ms.setdefault(stage, []).append(ms)
 
-    def count_path(self, path: str) -> None:
+    def count_path(self, path: TrackPath) -> None:
         """One more frame whose pose was found by `path` (`track_paths`)."""
-        self.track_paths[path] = self.track_paths.get(path, 0) + 1
+        self.track_paths[path.value] = self.track_paths.get(path.value, 0) + 1
 
     def start_clock(self) -> None:
         """The run starts: wall, process and this thread's CPU time from now."""
@@ -116,7 +112,7 @@ class RunSummary:
         fr = out.frontend
         if fr is not None:
             self.landmarks_reused += fr.n_reused
-            if fr.track_path:
+            if fr.track_path is not None:
                 self.count_path(fr.track_path)
             if "track_total" in fr.timings_ms:
                 self.add_time("tracking", fr.timings_ms["track_total"])
@@ -289,7 +285,9 @@ class RunSummary:
             "tracked by: "
             + (
                 ", ".join(
-                    f"{k} {self.track_paths[k]}" for k in TRACK_PATHS if k in self.track_paths
+                    f"{k} {self.track_paths[k]}"
+                    for k in (p.value for p in TrackPath)
+                    if k in self.track_paths
                 )
                 or "-"
             ),

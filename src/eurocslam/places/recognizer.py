@@ -29,13 +29,15 @@ from scipy.spatial import cKDTree
 from eurocslam.camera import RectifiedStereo, triangulate_rect
 from eurocslam.config import PlacesConfig
 from eurocslam.frontend.features import Features
-from eurocslam.frontend.tracking import optimize_pose, pnp_ransac, project_map, search_by_projection
+from eurocslam.frontend.pose_solver import CHI2_MONO_95, CHI2_STEREO_95, optimize_pose, pnp_ransac
+from eurocslam.frontend.projection import octave_sigma, project_map, search_by_projection
 from eurocslam.geometry import F64, inv_T
 from eurocslam.places.database import KeyframeDatabase
 from eurocslam.places.uncertainty import match_covariance, stereo_point_cov
 from eurocslam.places.vocabulary import BowVector, Vocabulary
 
 U8 = NDArray[np.uint8]
+GUIDED_RATIO = 0.9  # the guided search's best / second-best descriptor distance
 
 
 @dataclass(frozen=True)
@@ -236,7 +238,6 @@ class PlaceRecognizer:
             query.stereo_uv[:, [0, 2]], query.octave, np.zeros(len(query.desc)), query.desc
         )
         tree = cKDTree(feats.uv)
-        oct_max = self.scales.size - 1
         n = 0
         has_position = np.isfinite(pts_world).all(axis=1)
         for radius in (2.0 * self.radius_px, self.radius_px):
@@ -252,13 +253,13 @@ class PlaceRecognizer:
                 self.scales,
                 radius,
                 c.max_hamming,
-                0.9,
+                GUIDED_RATIO,
             )
             if rows.size < c.min_inliers:
                 return None
-            sigma = self.scales[np.clip(query.octave[kps], 0, oct_max)]
+            sigma = octave_sigma(self.scales, query.octave[kps])
             T_rc, inl2, _ = optimize_pose(
-                T_rc, pts_world[rows], query.stereo_uv[kps], sigma, g, 7.815, 5.991
+                T_rc, pts_world[rows], query.stereo_uv[kps], sigma, g, CHI2_STEREO_95, CHI2_MONO_95
             )
             n = int(inl2.sum())
             if n < c.min_inliers:
@@ -269,7 +270,7 @@ class PlaceRecognizer:
         rows, kps = rows[inl2], kps[inl2]
         R_world_rect = pts.T_world_body[:3, :3] @ g.T_body_rect0[:3, :3]
         cov_pts = stereo_point_cov(
-            cand.stereo_uv[rows], self.scales[np.clip(cand.octave[rows], 0, oct_max)], g
+            cand.stereo_uv[rows], octave_sigma(self.scales, cand.octave[rows]), g
         )
         cov = match_covariance(
             T_rc,
