@@ -18,7 +18,7 @@ import pytest
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import DatasetError, SlamError
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.extraction import SKIPPED, FrameFeatures
+from eurocslam.frontend.extraction import FrameFeatures, FrameProblem
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.workers import ExtractionWorkers
 from eurocslam.synth import Scene, SynthSpec
@@ -86,7 +86,7 @@ def test_one_frame_in_n_is_extracted(scene: Scene, frames) -> None:
         assert [fr for fr, _ in got] == bad
         for k, ((_, ff), fr) in enumerate(zip(got, bad, strict=True)):
             if k % 3:
-                assert ff.problem == SKIPPED and ff.t_ns == fr.t_ns
+                assert ff.problem == FrameProblem.SKIPPED and ff.t_ns == fr.t_ns
                 assert len(ff.left) == len(ff.right) == len(ff.stereo.uR) == 0
             else:
                 _same(ff, fe.extractor.extract(fr))

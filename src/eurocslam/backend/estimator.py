@@ -219,7 +219,7 @@ class KeyframeEstimator:
             assert self._pim is not None
             nav = gtsam.NavState(
                 gtsam.Rot3(st.T_world_body[:3, :3]),
-                gtsam.Point3(*st.T_world_body[:3, 3]),
+                gtsam.Point3(*st.T_world_body[:3, 3]),  # type: ignore[no-untyped-call]
                 st.v_world,
             )
             pred = self._pim.predict(nav, bias(st.bg, st.ba))
@@ -440,7 +440,7 @@ class KeyframeEstimator:
         for f in added.factors:
             graph.add(f)
         for key, p in added.new_points:
-            values.insert(key, gtsam.Point3(*p))
+            values.insert(key, gtsam.Point3(*p))  # type: ignore[no-untyped-call]
         stamps.update(added.stamps)
         self._seg.final_only.extend(added.final_only)
         return {base + i: f for i, f in added.subst.items()}
@@ -469,7 +469,7 @@ class KeyframeEstimator:
             if self._smoother is not None:
                 ts = gtsam.FixedLagSmootherKeyTimestampMap()
                 for key, t in stamps.items():
-                    ts.insert((key, t))
+                    ts.insert((key, t))  # type: ignore[no-untyped-call]
                 self._smoother.update(graph, values, ts)
                 est = self._smoother.calculateEstimate()
             else:

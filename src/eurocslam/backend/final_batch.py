@@ -101,7 +101,7 @@ def final_batch(
     gkeys = landmark_indices(graph.keyVector())
     positions = {int(i): lms.pos[i].copy() for i in gkeys}
     for i, p in positions.items():
-        vals.insert(L(i), gtsam.Point3(*p))
+        vals.insert(L(i), gtsam.Point3(*p))  # type: ignore[no-untyped-call]
     poses = {kk: e.T_world_body for kk, e in kf_estimates.items()}
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
@@ -296,7 +296,9 @@ def imu_bridge(
     ab = bias(a.bg, a.ba)
     pim = gtsam.PreintegratedCombinedMeasurements(imu.params, ab)
     nav = gtsam.NavState(
-        gtsam.Rot3(a.T_world_body[:3, :3]), gtsam.Point3(*a.T_world_body[:3, 3]), a.v_world
+        gtsam.Rot3(a.T_world_body[:3, :3]),
+        gtsam.Point3(*a.T_world_body[:3, 3]),  # type: ignore[no-untyped-call]
+        a.v_world,
     )
     pred, t_prev = [], a.t_ns
     for t in [*t_ns] + ([b.t_ns] if b is not None else []):

@@ -10,6 +10,7 @@ keyframes then to those now.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,7 +22,7 @@ def landmark_indices(keys: Iterable[int]) -> NDArray[np.int64]:
     """The indices of the landmark symbols L(i) among gtsam keys, in the keys' order."""
     k = np.asarray(keys, dtype=np.uint64)
     is_l = (k >> np.uint64(56)) == np.uint64(ord("l"))
-    return (k[is_l] & np.uint64((1 << 56) - 1)).astype(np.int64)
+    return cast(NDArray[np.int64], (k[is_l] & np.uint64((1 << 56) - 1)).astype(np.int64))
 
 
 class LandmarkKeys:

@@ -10,6 +10,7 @@ landmarks already in the graph first, then the nearest; the final batch takes up
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import gtsam
 import numpy as np
@@ -128,7 +129,7 @@ class StereoObservations:
         def world_point(i: int) -> F64:
             z = depth[i]
             Xc = np.array([(uv[i, 0] - st.cx) * z / st.fx, (uv[i, 2] - st.cy) * z / st.fy, z])
-            return T_world_rect0[:3, :3] @ Xc + T_world_rect0[:3, 3]
+            return cast(F64, T_world_rect0[:3, :3] @ Xc + T_world_rect0[:3, 3])
 
         n_new = 0
         factors: list[gtsam.NonlinearFactor] = []

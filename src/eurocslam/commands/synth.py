@@ -6,8 +6,12 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from eurocslam.commands._args import finite_float
+
+if TYPE_CHECKING:
+    from eurocslam.synth.spec import SynthSpec
 
 NAME = "synth"
 HELP = "write a synthetic or semi-real EuRoC sequence (rendered stereo, IMU, ground truth)"
@@ -115,7 +119,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
 
 
-def spec_from_args(args: argparse.Namespace):  # -> SynthSpec
+def spec_from_args(args: argparse.Namespace) -> SynthSpec:
     from eurocslam.errors import DatasetError
     from eurocslam.synth.spec import TINY_DURATION_S, SynthSpec
 

@@ -13,8 +13,10 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
+from numpy.typing import NDArray
 
 from eurocslam.camera import RectifiedStereo
 from eurocslam.dataset.calib import StereoRig
@@ -24,26 +26,38 @@ from eurocslam.frontend.features import Features, OrbExtractor
 from eurocslam.frontend.matching import StereoMatches, match_stereo
 from eurocslam.frontend.projection import pyramid_scales
 from eurocslam.frontend.stereo import StereoRectifier
+from eurocslam.geometry import F64
 
 
-def image_problem(img: U8 | None, config: FrontendConfig) -> str | None:
-    """Why an image cannot be tracked ('missing', 'black', 'saturated', 'blank'), or None."""
+class FrameProblem(str, Enum):
+    """Why a frame has no features (`FrameFeatures.problem`)."""
+
+    MISSING = "missing"  # an image is not there (or empty)
+    BLACK = "black"  # mean below `image_dark_mean`
+    SATURATED = "saturated"  # mean above `image_saturated_mean`
+    BLANK = "blank"  # standard deviation below `image_min_std`
+    SIZE = "size"  # not the rig's image size
+    SKIPPED = "skipped"  # left out by `frontend.track_every` (not a fault: the IMU bridges it)
+
+
+_CHECK_STRIDE = 4  # the image check looks at every 4th row and column
+
+
+def image_problem(img: U8 | None, config: FrontendConfig) -> FrameProblem | None:
+    """Why an image cannot be tracked (MISSING, BLACK, SATURATED, BLANK), or None."""
     if img is None:
-        return "missing"
+        return FrameProblem.MISSING
     if img.ndim != 2 or img.size == 0:
-        return "missing"
-    sub = img[::4, ::4]
+        return FrameProblem.MISSING
+    sub = img[::_CHECK_STRIDE, ::_CHECK_STRIDE]
     mean = float(sub.mean())
     if mean < config.image_dark_mean:
-        return "black"
+        return FrameProblem.BLACK
     if mean > config.image_saturated_mean:
-        return "saturated"
+        return FrameProblem.SATURATED
     if float(sub.std()) < config.image_min_std:
-        return "blank"
+        return FrameProblem.BLANK
     return None
-
-
-SKIPPED = "skipped"  # FrameFeatures.problem of a frame left out by frontend.track_every
 
 
 @dataclass(frozen=True)
@@ -51,18 +65,23 @@ class FrameFeatures:
     """Output of the extraction stage for one stereo frame (rectified cam0 pixels)."""
 
     t_ns: int
-    problem: str | None  # None: usable; SKIPPED; else why the frame is NO_IMAGE
+    problem: FrameProblem | None  # None: usable; SKIPPED; else why the frame is NO_IMAGE
     left: Features
     right: Features
     stereo: StereoMatches
     timings_ms: dict[str, float] = field(default_factory=dict)
+
+    def stereo_uv(self, kps: NDArray[np.intp]) -> F64:
+        """The stereo measurements (N, 3) = (uL, uR, v) of left keypoints `kps` (uR NaN: none)."""
+        uv = self.left.uv
+        return np.column_stack([uv[kps, 0], self.stereo.uR[kps], uv[kps, 1]]).reshape(-1, 3)
 
 
 def _shape(img: U8 | None) -> tuple[int, ...]:
     return () if img is None else img.shape
 
 
-def _unusable(t_ns: int, problem: str) -> FrameFeatures:
+def _unusable(t_ns: int, problem: FrameProblem) -> FrameFeatures:
     """The features of a frame not extracted: none, and why (`problem`)."""
     e = Features.empty()
     no_stereo = StereoMatches(np.zeros(0), np.zeros(0), np.zeros(0, dtype=np.intp))
@@ -91,8 +110,8 @@ class Extractor:
             self._local.orb = ex
         return ex
 
-    def frame_problem(self, frame: StereoFrame) -> str | None:
-        """Why a frame's images cannot be tracked (`image_problem` of either, or 'size'), or
+    def frame_problem(self, frame: StereoFrame) -> FrameProblem | None:
+        """Why a frame's images cannot be tracked (`image_problem` of either, or SIZE), or
         None."""
         c = self.config
         problem = image_problem(frame.left, c) or image_problem(frame.right, c)
@@ -100,21 +119,21 @@ class Extractor:
         if problem is None and (
             _shape(frame.left) != (g.height, g.width) or _shape(frame.right) != (g.height, g.width)
         ):
-            problem = "size"
+            problem = FrameProblem.SIZE
         return problem
 
     def without_extraction(self, frame: StereoFrame, n: int) -> FrameFeatures | None:
         """The features of a stream's `n`th frame (from 0) where they need no extraction: a
         frame between two tracked ones (SKIPPED) or one that fails the image check; None for a
         frame to extract."""
-        problem = SKIPPED if n % self.config.track_every else self.frame_problem(frame)
+        problem = FrameProblem.SKIPPED if n % self.config.track_every else self.frame_problem(frame)
         return None if problem is None else _unusable(frame.t_ns, problem)
 
     def extract(self, frame: StereoFrame) -> FrameFeatures:
         """Rectify, ORB on both images, stereo matching."""
         problem = self.frame_problem(frame)
         if problem is not None or frame.left is None or frame.right is None:
-            return _unusable(frame.t_ns, problem or "missing")
+            return _unusable(frame.t_ns, problem or FrameProblem.MISSING)
         t0 = time.perf_counter()
         left = self.rectifier.rectify_left(frame.left)
         right = self.rectifier.rectify_right(frame.right)

@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from operator import attrgetter
+from typing import cast
 
 import cv2
 import numpy as np
@@ -51,7 +52,7 @@ def hamming(a: NDArray[np.uint8], b: NDArray[np.uint8]) -> NDArray[np.int32]:
     x = np.bitwise_xor(
         np.ascontiguousarray(a).view(np.uint64), np.ascontiguousarray(b).view(np.uint64)
     )
-    return np.bitwise_count(x).sum(axis=-1, dtype=np.int32)
+    return cast(NDArray[np.int32], np.bitwise_count(x).sum(axis=-1, dtype=np.int32))
 
 
 def _points(kps: Sequence[cv2.KeyPoint]) -> F64:
@@ -70,7 +71,7 @@ class OrbExtractor:
         n_cand = max(config.n_features, int(config.n_features * config.orb_candidates_factor))
 
         def orb(fast_threshold: int) -> cv2.ORB:
-            return cv2.ORB_create(  # type: ignore[attr-defined]
+            return cv2.ORB_create(  # type: ignore[attr-defined,no-any-return]
                 nfeatures=n_cand,
                 scaleFactor=config.orb_scale_factor,
                 nlevels=config.orb_levels,

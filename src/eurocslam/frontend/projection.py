@@ -9,6 +9,7 @@ needs; `rect_T_from_body` / `body_T_from_rect` convert from and to `T_world_body
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +23,7 @@ from eurocslam.geometry import F64, inv_T, rigid
 IN_FRONT_M = 0.1  # a point this close to the camera plane or behind it does not project
 MAX_OCTAVE_GAP = 2  # pyramid levels between a landmark's octave and a keypoint matched to it
 SAME_SPOT_PX = 2.0  # a second candidate this close to the best is the same corner (another level)
+CANDIDATES = 6  # the nearest keypoints a landmark's projection considers
 _NO_MATCH = 1 << 20  # a descriptor distance no candidate has
 
 
@@ -33,7 +35,7 @@ def pyramid_scales(config: FrontendConfig) -> F64:
 def octave_sigma(scales: F64, octave: NDArray[np.integer]) -> F64:
     """The pixel sigma of keypoints by their pyramid `octave` (its scale; octaves beyond the
     pyramid take its ends)."""
-    return scales[np.clip(octave, 0, scales.size - 1)]
+    return cast(F64, scales[np.clip(octave, 0, scales.size - 1)])
 
 
 def rect_T_from_body(T_world_body: F64, T_body_rect0: F64) -> F64:
@@ -75,6 +77,17 @@ def project_map(
     return Projection(np.column_stack([u, v]), uR, in_view)
 
 
+@dataclass(frozen=True)
+class MatchRule:
+    """Which keypoint a projected landmark takes: one within `radius_px` (times the landmark's
+    octave scale) of its projection, at most `max_hamming` descriptor bits away and closer than
+    `ratio` times the second best."""
+
+    radius_px: float
+    max_hamming: int
+    ratio: float
+
+
 def search_by_projection(
     proj: Projection,
     lm_rows: NDArray[np.intp],
@@ -84,21 +97,18 @@ def search_by_projection(
     feat_uR: F64,
     tree: cKDTree,
     scale: F64,
-    radius_px: float,
-    max_hamming: int,
-    ratio: float,
-    taken: NDArray[np.bool_] | None = None,
-    k: int = 6,
+    rule: MatchRule,
 ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.int32]]:
-    """Match projected landmarks (rows `lm_rows` of the projection) to keypoints nearby.
+    """Match projected landmarks (rows `lm_rows` of the projection) to keypoints nearby (`tree`
+    over `feats.uv`; `feat_uR` their right columns, NaN: none) by `rule`.
 
     Returns (landmark rows, keypoint indices, distances); each keypoint used at most once.
     """
     empty = (np.zeros(0, np.intp), np.zeros(0, np.intp), np.zeros(0, np.int32))
     if lm_rows.size == 0 or len(feats) == 0:
         return empty
-    k = min(k, len(feats))
-    radius = radius_px * octave_sigma(scale, lm_octave[lm_rows])
+    k = min(CANDIDATES, len(feats))
+    radius = rule.radius_px * octave_sigma(scale, lm_octave[lm_rows])
     d_px, nn = tree.query(proj.uv[lm_rows], k=k, distance_upper_bound=float(radius.max()))
     d_px = np.asarray(d_px).reshape(lm_rows.size, k)
     nn = np.asarray(nn).reshape(lm_rows.size, k)
@@ -111,8 +121,6 @@ def search_by_projection(
     pred_uR = proj.uR[lm_rows][:, None]
     with np.errstate(invalid="ignore"):
         valid &= ~(np.abs(kp_uR - pred_uR) > radius[:, None])
-    if taken is not None:
-        valid &= ~taken[nn]
     dist = np.full(valid.shape, _NO_MATCH, dtype=np.int32)
     vi, vj = np.nonzero(valid)
     dist[vi, vj] = hamming(lm_desc[lm_rows[vi]], feats.desc[nn[vi, vj]])
@@ -129,7 +137,7 @@ def search_by_projection(
         second = np.where(same_spot, _NO_MATCH, second)
     else:
         second = np.full(lm_rows.size, _NO_MATCH)
-    ok = (best <= max_hamming) & (best < ratio * second)
+    ok = (best <= rule.max_hamming) & (best < rule.ratio * second)
     rows, kps, dists = lm_rows[ok], best_kp[ok], best[ok]
     if rows.size == 0:
         return empty

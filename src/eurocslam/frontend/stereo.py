@@ -8,6 +8,8 @@ remapped: its images are used as they are and points map to themselves.
 
 from __future__ import annotations
 
+from typing import cast
+
 import cv2
 import numpy as np
 
@@ -63,7 +65,7 @@ class StereoRectifier:
         if pts.shape[0] == 0:
             return np.zeros((0, 2))
         if self.passthrough:
-            return pts.reshape(-1, 2).copy()
+            return cast(F64, pts.reshape(-1, 2).copy())
         out = undistort_points(pts, c0.K, c0.D, self.R_rect0_cam0, self.P0)
         return np.asarray(out.reshape(-1, 2), dtype=np.float64)
 
@@ -73,7 +75,7 @@ class StereoRectifier:
         if uv.shape[0] == 0:
             return np.zeros((0, 2))
         if self.passthrough:
-            return uv.copy()
+            return cast(F64, uv.copy())
         g = self.geometry
         rays_rect = np.column_stack(
             [(uv[:, 0] - g.cx) / g.fx, (uv[:, 1] - g.cy) / g.fy, np.ones(len(uv))]

@@ -1,11 +1,12 @@
 """Tracking, the second stage of the frontend: `FrameFeatures` in, `FrontendResult` out.
 
-`StereoTracker.track(features, prediction)` tracks a local map of landmarks: project the map with
-the predicted pose (the caller's, e.g. from the IMU, else a constant-velocity model), match by
-descriptor in a window, optimise the pose on stereo reprojection errors with outlier rejection
-(two passes, the second at the refined pose), recover with `cv2.solvePnPRansac` when the
-prediction fails, create landmarks at keyframes, re-find archived ones (map reuse) and cull
-unreliable ones. Sequential: one tracker per trajectory segment (`restarted`).
+`StereoTracker.track(features, prediction)` tracks a local map of landmarks (`local_map.py`):
+project the map with the predicted pose (the caller's, e.g. from the IMU, else a
+constant-velocity model) and match by descriptor in a window (`projection.py`), optimise the
+pose on stereo reprojection errors with outlier rejection (two passes, the second at the refined
+pose), find it from descriptors and PnP RANSAC when the prediction fails (`pose_solver.py`),
+create landmarks at keyframes, re-find archived ones (map reuse) and cull unreliable ones.
+Sequential: one tracker per trajectory segment (`restarted`).
 
 The backend's corrections come back through one method, `apply(MapCorrection)`.
 """
@@ -26,6 +27,7 @@ from eurocslam.frontend.local_map import CullRules, LocalMap
 from eurocslam.frontend.motion import VelocityModel
 from eurocslam.frontend.pose_solver import optimize_pose, pose_from_descriptors
 from eurocslam.frontend.projection import (
+    MatchRule,
     body_T_from_rect,
     octave_sigma,
     project_map,
@@ -35,7 +37,7 @@ from eurocslam.frontend.projection import (
 )
 from eurocslam.frontend.stereo import StereoRectifier
 from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState, TrackPath
-from eurocslam.geometry import F64, inv_T, rigid
+from eurocslam.geometry import F64, inv_T, rigid, transform_points
 from eurocslam.timebase import ns_to_s, s_to_ns
 
 # the projection search's window, in `track_radius_deg`s
@@ -58,16 +60,15 @@ class StereoTracker:
         config: FrontendConfig | None = None,
         first_landmark_id: int = 0,
     ) -> None:
-        self.config = config or FrontendConfig()
-        self.config.validate()
+        self.config = c = config or FrontendConfig()
+        c.validate()
         self._rectifier = rectifier
         self._T_body_rect0 = rectifier.geometry.T_body_rect0
-        self.scale = pyramid_scales(self.config)
+        self.scale = pyramid_scales(c)
         fx = rectifier.geometry.fx  # angles in the configuration -> pixels on this rig
-        self._track_radius_px = fx * np.radians(self.config.track_radius_deg)
-        self._reuse_radius_px = fx * np.radians(self.config.reuse_radius_deg)
-        self._kf_parallax_px = fx * np.radians(self.config.kf_parallax_deg)
-        c = self.config
+        self._track_radius_px = fx * np.radians(c.track_radius_deg)
+        self._reuse_radius_px = fx * np.radians(c.reuse_radius_deg)
+        self._kf_parallax_px = fx * np.radians(c.kf_parallax_deg)
         self._cull_rules = CullRules(
             s_to_ns(c.landmark_max_unseen_s),
             c.landmark_min_visible_for_ratio,
@@ -76,9 +77,7 @@ class StereoTracker:
             c.archive_min_found if c.reuse_map else None,
         )
         self.map = LocalMap(first_landmark_id, c.archive_max_landmarks)
-        self._motion = VelocityModel(
-            self.config.max_velocity_m_s, self.config.max_angular_velocity_rad_s
-        )
+        self._motion = VelocityModel(c.max_velocity_m_s, c.max_angular_velocity_rad_s)
         self._t_ns = 0  # the frame being tracked
         self._initialized = False
         self._lost_count = 0
@@ -194,7 +193,6 @@ class StereoTracker:
             timings,
             t0,
             ids=ids,
-            uv=self._stereo_uv(ff, obs_kps),
             is_kf=is_kf,
             tracked=tracked,
             n_tracked=n_tracked,
@@ -211,11 +209,6 @@ class StereoTracker:
         return self._initialize(ff, rigid(T_world_body), dict(ff.timings_ms), t0, reinit=True)
 
     # ---- internals --------------------------------------------------------------------------
-    def _stereo_uv(self, ff: FrameFeatures, kps: NDArray[np.intp]) -> F64:
-        return np.column_stack([ff.left.uv[kps, 0], ff.stereo.uR[kps], ff.left.uv[kps, 1]]).reshape(
-            -1, 3
-        )
-
     def _initialize(
         self,
         ff: FrameFeatures,
@@ -244,7 +237,6 @@ class StereoTracker:
         self.last_T_world_body = T_world_body.copy()
         self._last_kf_t_ns = ff.t_ns
         self._ref_kf_tracked = int(ids.size)
-        tracked = np.zeros(len(ff.left), dtype=bool)
         return self._result(
             ff,
             TrackingState.INIT,
@@ -252,10 +244,7 @@ class StereoTracker:
             timings,
             t0,
             ids=ids,
-            uv=self._stereo_uv(ff, kps),
             is_kf=True,
-            tracked=tracked,
-            n_tracked=0,
             obs_kps=kps,
         )
 
@@ -297,7 +286,7 @@ class StereoTracker:
         uv = ff.left.uv[kps]
         p_rect = triangulate_rect(uv[:, 0], ff.stereo.uR[kps], uv[:, 1], self.rectified)
         T_world_rect0 = T_world_body @ self._T_body_rect0
-        return p_rect @ T_world_rect0[:3, :3].T + T_world_rect0[:3, 3]
+        return transform_points(T_world_rect0, p_rect)
 
     def _match_and_optimize(
         self,
@@ -312,21 +301,12 @@ class StereoTracker:
         proj = project_map(T_rc, m.xyz, g)
         rows_vis = np.nonzero(proj.in_view)[0]
         rows, kps, _ = search_by_projection(
-            proj,
-            rows_vis,
-            m.desc,
-            m.octave,
-            ff.left,
-            ff.stereo.uR,
-            tree,
-            self.scale,
-            radius,
-            c.track_max_hamming,
-            c.track_ratio,
-        )
+            proj, rows_vis, m.desc, m.octave, ff.left, ff.stereo.uR, tree, self.scale,
+            MatchRule(radius, c.track_max_hamming, c.track_ratio),
+        )  # fmt: skip
         if rows.size < c.min_tracked:
             return T_rc, rows[:0], kps[:0], int(rows.size)
-        meas = self._stereo_uv(ff, kps)
+        meas = ff.stereo_uv(kps)
         T_opt, inl, _ = optimize_pose(
             T_rc, m.xyz[rows], meas, sigma_all[kps], g, c.pose_chi2_stereo, c.pose_chi2_mono
         )
@@ -435,18 +415,9 @@ class StereoTracker:
         fl = ff.left
         cand = Features(fl.uv[free], fl.octave[free], fl.response[free], fl.desc[free])
         rows, kps, _ = search_by_projection(
-            proj,
-            rows,
-            a.desc,
-            a.octave,
-            cand,
-            ff.stereo.uR[free],
-            cKDTree(cand.uv),
-            self.scale,
-            self._reuse_radius_px,
-            c.reuse_max_hamming,
-            c.reuse_ratio,
-        )
+            proj, rows, a.desc, a.octave, cand, ff.stereo.uR[free], cKDTree(cand.uv), self.scale,
+            MatchRule(self._reuse_radius_px, c.reuse_max_hamming, c.reuse_ratio),
+        )  # fmt: skip
         if rows.size == 0:
             return none
         kps = free[kps]
@@ -481,7 +452,6 @@ class StereoTracker:
         timings: dict[str, float],
         t0: float,
         ids: NDArray[np.int64] | None = None,
-        uv: F64 | None = None,
         is_kf: bool = False,
         tracked: NDArray[np.bool_] | None = None,
         n_tracked: int = 0,
@@ -497,7 +467,7 @@ class StereoTracker:
             t_ns=ff.t_ns,
             state=state,
             landmark_ids=np.zeros(0, np.int64) if ids is None else ids.astype(np.int64),
-            stereo_uv=np.zeros((0, 3)) if uv is None else uv,
+            stereo_uv=np.zeros((0, 3)) if obs_kps is None else ff.stereo_uv(obs_kps),
             T_world_body=None if T_world_body is None else T_world_body.copy(),
             is_keyframe=is_kf,
             n_features=len(ff.left),

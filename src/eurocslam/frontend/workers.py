@@ -36,6 +36,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 from multiprocessing.connection import Connection
+from typing import cast
 
 import numpy as np
 
@@ -145,11 +146,11 @@ def _attach(name: str) -> shared_memory.SharedMemory:
     from multiprocessing import resource_tracker
 
     register = resource_tracker.register
-    resource_tracker.register = lambda *args, **kwargs: None  # type: ignore[assignment]
+    resource_tracker.register = lambda *args, **kwargs: None
     try:
         return shared_memory.SharedMemory(name=name)
     finally:
-        resource_tracker.register = register  # type: ignore[assignment]
+        resource_tracker.register = register
 
 
 class ExtractionWorkers:
@@ -253,7 +254,7 @@ class ExtractionWorkers:
             raise self._stopped(worker) from None
         if isinstance(out, _WorkerFailure):
             raise RuntimeError(f"feature extraction failed in process {proc.pid}:\n{out.trace}")
-        return out
+        return cast(FrameFeatures, out)
 
     def _stopped(self, worker: int) -> SlamError:
         proc = self._procs[worker]

@@ -81,7 +81,7 @@ def _compressor(compression: str, level: int) -> Callable[[bytes], bytes]:
             if c is None:
                 params = zstandard.ZstdCompressionParameters.from_level(level, **ZSTD_MATCH)
                 c = local.c = zstandard.ZstdCompressor(compression_params=params)
-            return c.compress(data)  # type: ignore[no-any-return]
+            return c.compress(data)
 
         return zstd
     if compression == "lz4":
@@ -157,7 +157,7 @@ class ChunkedWriter:
         """Write an mcap record object; returns its length in bytes."""
         rb = RecordBuilder()
         record.write(rb)
-        data = rb.end()
+        data = rb.end()  # type: ignore[no-untyped-call]
         self._write(data)
         return len(data)
 
@@ -165,7 +165,7 @@ class ChunkedWriter:
         """Put a schema or channel record in the open chunk."""
         rb = RecordBuilder()
         record.write(rb)
-        data = rb.end()
+        data = rb.end()  # type: ignore[no-untyped-call]
         self._chunk.parts.append(data)
         self._chunk.size += len(data)
         if self._chunk.size > self.chunk_size:
@@ -363,7 +363,7 @@ class ChunkedWriter:
         summary_offset_start = summary_start + rb.count
         for o in offsets:
             o.write(rb)
-        summary = rb.end()
+        summary = rb.end()  # type: ignore[no-untyped-call]
         footer_head = struct.pack(
             "<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start
         )

@@ -29,7 +29,7 @@ from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimat
 from eurocslam.config import RunConfig, resolve_mode
 from eurocslam.dataset.types import SequenceSource, has_imu
 from eurocslam.errors import ConfigError
-from eurocslam.frontend.extraction import SKIPPED, FrameFeatures
+from eurocslam.frontend.extraction import FrameFeatures, FrameProblem
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState, TrackPath
@@ -214,7 +214,7 @@ class SlamPipeline:
     def step(self, ff: FrameFeatures) -> FrameOutput:
         """Process one frame (features already extracted)."""
         self.summary.count_frame(ff.timings_ms)
-        if ff.problem == SKIPPED and self.state != PipelineState.LOST:
+        if ff.problem == FrameProblem.SKIPPED and self.state != PipelineState.LOST:
             out = self._between(ff.t_ns)  # lost, it is a frame without images
         elif self.state == PipelineState.INIT:
             out = self._step_init(ff)

@@ -17,6 +17,7 @@ it writes the frames of the window into the segment it is given.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -167,7 +168,7 @@ class Startup:
         if self.cfg.init.visual_world == "body":
             return np.eye(3)
         R_body_cam0 = self.rig.cam0.T_body_cam[:3, :3]
-        return R_WORLD_CAM_LEVEL @ R_body_cam0.T
+        return cast(F64, R_WORLD_CAM_LEVEL @ R_body_cam0.T)
 
     def _fallback_init(self) -> InitialState:
         """The window could not be aligned (too little motion): keep the levelled VO frame,

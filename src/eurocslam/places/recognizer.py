@@ -30,7 +30,12 @@ from eurocslam.camera import RectifiedStereo, triangulate_rect
 from eurocslam.config import PlacesConfig
 from eurocslam.frontend.features import Features
 from eurocslam.frontend.pose_solver import CHI2_MONO_95, CHI2_STEREO_95, optimize_pose, pnp_ransac
-from eurocslam.frontend.projection import octave_sigma, project_map, search_by_projection
+from eurocslam.frontend.projection import (
+    MatchRule,
+    octave_sigma,
+    project_map,
+    search_by_projection,
+)
 from eurocslam.geometry import F64, inv_T
 from eurocslam.places.database import KeyframeDatabase
 from eurocslam.places.uncertainty import match_covariance, stereo_point_cov
@@ -251,9 +256,7 @@ class PlaceRecognizer:
                 query.stereo_uv[:, 1],
                 tree,
                 self.scales,
-                radius,
-                c.max_hamming,
-                GUIDED_RATIO,
+                MatchRule(radius, c.max_hamming, GUIDED_RATIO),
             )
             if rows.size < c.min_inliers:
                 return None

@@ -156,7 +156,7 @@ class CameraModel:
         return r0, r1, c0, c1
 
 
-_MODEL_CACHE: dict[tuple, CameraModel] = {}
+_MODEL_CACHE: dict[tuple[object, ...], CameraModel] = {}
 
 
 def camera_model(cam: CameraCalib) -> CameraModel:
@@ -354,7 +354,7 @@ def _sample_trilinear(world: World, X: np.ndarray, Y: np.ndarray, foot: np.ndarr
             a, b = whole(lv), whole(lv + 1)
             blend = a + (lvl - F32(lv)) * (b - a)
             if cnt == n:
-                return blend
+                return blend  # type: ignore[no-any-return]
             np.copyto(out, blend, where=l0 == lv)
             continue
         sel = np.flatnonzero(l0.reshape(-1) == lv)

@@ -21,6 +21,7 @@ rotations).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy.linalg import solve_banded
@@ -41,7 +42,7 @@ def so3_exp_batch(w: F64) -> F64:
     K[..., 0, 1], K[..., 0, 2] = -w[..., 2], w[..., 1]
     K[..., 1, 0], K[..., 1, 2] = w[..., 2], -w[..., 0]
     K[..., 2, 0], K[..., 2, 1] = -w[..., 1], w[..., 0]
-    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return cast(F64, np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K))
 
 
 def so3_log_batch(R: F64) -> F64:
@@ -87,7 +88,7 @@ class SplineTrajectory:
 
     @property
     def t_end(self) -> float:
-        return self.t0 + (self.ctrl_p.shape[0] - 3) * self.dt
+        return float(self.t0 + (self.ctrl_p.shape[0] - 3) * self.dt)
 
     def _segments(self, t: F64) -> tuple[np.ndarray, F64]:
         s = (np.asarray(t, dtype=np.float64) - self.t0) / self.dt
@@ -98,7 +99,7 @@ class SplineTrajectory:
         i, u = self._segments(t)
         b, _, _ = _basis(u)
         idx = i[:, None] + np.arange(4)
-        return np.einsum("nk,nkd->nd", b, self.ctrl_p[idx])
+        return cast(F64, np.einsum("nk,nkd->nd", b, self.ctrl_p[idx]))
 
     def evaluate(self, t: F64) -> PoseSamples:
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
+from typing import cast
 
 import cv2
 import numpy as np
@@ -106,7 +107,7 @@ def _power_sizes(rng: np.random.Generator, n: int, smin: float, smax: float, alp
     """Sizes with density ~ s^-alpha on [smin, smax] (alpha > 1): many small, few large."""
     u = rng.random(n)
     e = 1.0 - alpha
-    return (smin**e + u * (smax**e - smin**e)) ** (1.0 / e)
+    return cast(F64, (smin**e + u * (smax**e - smin**e)) ** (1.0 / e))
 
 
 def make_texture(
@@ -206,7 +207,7 @@ def make_marker_texture(
 def _aabb_distance(points: F64, lo: F64, hi: F64) -> F64:
     """Distance from each point (N, 3) to the box [lo, hi] (0 inside)."""
     d = np.maximum(np.maximum(lo - points, points - hi), 0.0)
-    return np.linalg.norm(d, axis=1)
+    return cast(F64, np.linalg.norm(d, axis=1))
 
 
 def _place_obstacles(
