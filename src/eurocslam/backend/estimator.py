@@ -45,13 +45,23 @@ from eurocslam.backend.initializer import InitialState, InitMode
 from eurocslam.backend.landmarks import LandmarkKeys, landmark_indices
 from eurocslam.backend.observations import StereoAdded, StereoObservations
 from eurocslam.backend.pose_graph import LoopEdge, spread_loops
-from eurocslam.backend.preintegration import bias, integrate
+from eurocslam.backend.preintegration import bias
+from eurocslam.backend.propagator import Propagator
+from eurocslam.backend.smoother import Smoother
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate, SegmentSolution
 from eurocslam.camera import RectifiedStereo
 from eurocslam.config import RunConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
 from eurocslam.geometry import F64, inv_T, se3_adjoint
+from eurocslam.timebase import ns_to_s
+
+MIN_DT_S = 1e-3  # keyframes closer in time count as this far apart (velocities, random walks)
+# without an IMU factor: the velocity may change by this much per second between keyframes
+# (over at least `LOOSE_MIN_DT_S`), and the unused biases are held by a unit prior
+LOOSE_ACCEL_M_S2 = 2.0
+LOOSE_MIN_DT_S = 0.05
+UNUSED_BIAS_SIGMA = 1.0
 
 
 class KeyframeEstimator:
@@ -74,16 +84,14 @@ class KeyframeEstimator:
         )
         self._rw_gyro = rw_gyro * cfg.imu.gyro_bias_walk_scale
         self._rw_acc = rw_acc * cfg.imu.accel_bias_walk_scale
-        self._make_smoother()
+        self._smoother = Smoother(cfg.backend)
         self._k = -1  # index of the latest keyframe
         self._t0_ns = 0
         self._state: NavEstimate | None = None
         self._lms = LandmarkKeys()
         self._obs = StereoObservations(cfg.backend, self._imu is not None, self._stereo, self._lms)
         self._seg = SegmentGraph()
-        self._pim: gtsam.PreintegratedCombinedMeasurements | None = None
-        self._pim_t_ns = 0
-        self._pim_ok = True
+        self._propagator = Propagator(self._imu, cfg.imu.max_gap_s)
         self._kf_estimates: dict[int, NavEstimate] = {}  # keyframe index -> smoothed estimate
         self._window: list[int] = []  # keyframe indices still in the smoother
         # loop closures: the edges found by place recognition, and for each keyframe where the
@@ -105,22 +113,8 @@ class KeyframeEstimator:
         """The segment's landmarks: frontend ids, graph keys, latest positions (read it)."""
         return self._lms
 
-    # ---- setup ----------------------------------------------------------------------------------
-    def _make_smoother(self) -> None:
-        b = self.cfg.backend
-        p = gtsam.ISAM2Params()
-        p.setRelinearizeThreshold(b.relinearize_threshold)
-        p.relinearizeSkip = b.relinearize_skip
-        p.findUnusedFactorSlots = True
-        self._smoother: gtsam.IncrementalFixedLagSmoother | None = None
-        self._isam: gtsam.ISAM2 | None = None
-        if b.smoother == "fixed_lag":
-            self._smoother = gtsam.IncrementalFixedLagSmoother(b.lag_s, p)
-        else:
-            self._isam = gtsam.ISAM2(p)
-
     def _t(self, t_ns: int) -> float:
-        return (t_ns - self._t0_ns) * 1e-9
+        return ns_to_s(t_ns - self._t0_ns)
 
     # ---- initialisation -------------------------------------------------------------------------
     def initialize(
@@ -148,88 +142,32 @@ class KeyframeEstimator:
         vel_sigma = c.prior_vel_sigma_dynamic if dynamic else c.prior_vel_sigma_static
         if self._imu is None:
             vel_sigma = 1.0
-        bias_noise = gtsam.noiseModel.Diagonal.Sigmas(
-            np.array([c.prior_accel_bias_sigma] * 3 + [c.prior_gyro_bias_sigma] * 3)
-        )
         self._k = 0
-        graph.add(gtsam.PriorFactorPose3(X(0), pose(init.T_world_body), pose_noise))
-        graph.add(
-            gtsam.PriorFactorVector(
-                V(0),
-                np.asarray(init.v_world, float),
-                gtsam.noiseModel.Isotropic.Sigma(3, vel_sigma),
-            )
-        )
-        b0 = bias(init.bg, init.ba)
-        graph.add(gtsam.PriorFactorConstantBias(B(0), b0, bias_noise))
-        values.insert(X(0), pose(init.T_world_body))
-        values.insert(V(0), np.asarray(init.v_world, float))
-        values.insert(B(0), b0)
+        v0, b0 = np.asarray(init.v_world, float), bias(init.bg, init.ba)
+        self._prior_state(0, (init.T_world_body, v0, b0), pose_noise, vel_sigma, graph, values)
         for key in (X(0), V(0), B(0)):
             stamps[key] = 0.0
         self._seg = SegmentGraph(kf_index0=0)
         self._seg.add_keyframe(init.t_ns)
-        self._state = NavEstimate(
-            init.t_ns,
-            np.asarray(init.T_world_body, float),
-            np.asarray(init.v_world, float),
-            np.asarray(init.bg, float),
-            np.asarray(init.ba, float),
-        )
-        self._reset_pim(init.t_ns, self._state)
+        bg, ba = np.asarray(init.bg, float), np.asarray(init.ba, float)
+        self._state = NavEstimate(init.t_ns, np.asarray(init.T_world_body, float), v0, bg, ba)
+        self._propagator.restart(self._state)
         added = self._obs.add(0, init.T_world_body, landmark_ids, stereo_uv, stereo_sigma, 0.0)
         subst = self._take(added, graph, values, stamps)
         self._update(graph, values, stamps, subst, added.anchors)
         return self._read_state(0, init.t_ns)
 
     # ---- IMU prediction ------------------------------------------------------------------------
-    def _reset_pim(self, t_ns: int, st: NavEstimate) -> None:
-        if self._imu is None:
-            return
-        self._pim = gtsam.PreintegratedCombinedMeasurements(self._imu.params, bias(st.bg, st.ba))
-        self._pim_t_ns = t_ns
-        self._pim_ok = True
-
-    def _extend_pim(self, t_ns: int) -> None:
-        assert self._pim is not None and self._imu is not None
-        if t_ns <= self._pim_t_ns:
-            return
-        info = integrate(self._pim, self._imu.data, self._pim_t_ns, t_ns)
-        if not info.ok(self.cfg.imu.max_gap_s):
-            self._pim_ok = False
-        self._pim_t_ns = t_ns
-
     def imu_ok_since_keyframe(self) -> bool:
         """No IMU dropout since the latest keyframe (always True visual-only)."""
-        return self._pim_ok
-
-    def _imu_links(self) -> bool:
-        """The next keyframe is linked to the latest by an IMU factor."""
-        return self._imu is not None and self._pim_ok
+        return self._propagator.imu_ok
 
     def predict(self, t_ns: int) -> NavEstimate:
-        """State at `t_ns` predicted from the latest keyframe state: IMU preintegration, or a
-        constant-velocity model when visual-only or across an IMU dropout."""
+        """State at `t_ns` predicted from the latest keyframe state (`propagator.py`): IMU
+        preintegration, or a constant velocity when visual-only or across an IMU dropout."""
         st = self._state
         assert st is not None
-        dt = (t_ns - st.t_ns) * 1e-9
-        if self._imu is not None:
-            self._extend_pim(t_ns)
-        if self._imu_links():
-            assert self._pim is not None
-            nav = gtsam.NavState(
-                gtsam.Rot3(st.T_world_body[:3, :3]),
-                gtsam.Point3(*st.T_world_body[:3, 3]),  # type: ignore[no-untyped-call]
-                st.v_world,
-            )
-            pred = self._pim.predict(nav, bias(st.bg, st.ba))
-            T = pred.pose().matrix()
-            v = np.asarray(pred.velocity())
-        else:
-            T = st.T_world_body.copy()
-            T[:3, 3] = T[:3, 3] + st.v_world * dt
-            v = st.v_world
-        return NavEstimate(t_ns, T, v, st.bg, st.ba)
+        return self._propagator.predict(st, t_ns)
 
     # ---- keyframes ------------------------------------------------------------------------------
     def add_keyframe(
@@ -253,19 +191,17 @@ class KeyframeEstimator:
         pred = self.predict(t_ns)
         T_guess = T_world_body_guess if T_world_body_guess is not None else pred.T_world_body
         v_guess = pred.v_world
-        imu_link = self._imu_links()
+        imu_link = self._propagator.imu_links
         if T_world_body_guess is not None and not imu_link:
-            dt = max((t_ns - st.t_ns) * 1e-9, 1e-3)
+            dt = max(ns_to_s(t_ns - st.t_ns), MIN_DT_S)
             v_guess = (T_world_body_guess[:3, 3] - st.T_world_body[:3, 3]) / dt
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps: dict[int, float] = {}
-        dt = (t_ns - st.t_ns) * 1e-9
+        dt = ns_to_s(t_ns - st.t_ns)
         if imu_link:
-            assert self._pim is not None
-            graph.add(
-                gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), self._pim)
-            )
+            pim = self._propagator.preintegrated
+            graph.add(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), pim))
         else:
             self._add_loose_link(k, dt, graph)
         values.insert(X(k), pose(T_guess))
@@ -307,7 +243,7 @@ class KeyframeEstimator:
         self._seg.add_keyframe(t_ns)
         self._update(graph, values, stamps, subst, anchors)
         update = self._read_state(k, t_ns)
-        self._reset_pim(t_ns, update.nav)
+        self._propagator.restart(update.nav)
         return update
 
     def _place_noise(self, scale: float = 1.0) -> gtsam.noiseModel.Base:
@@ -324,13 +260,8 @@ class KeyframeEstimator:
         position, visual-only every direction. None where GTSAM cannot give it."""
         st = self._state
         assert st is not None
-        try:
-            if self._smoother is not None:
-                cov = self._smoother.marginalCovariance(X(self._k))
-            else:
-                assert self._isam is not None
-                cov = self._isam.marginalCovariance(X(self._k))
-        except RuntimeError:
+        cov = self._smoother.marginal_covariance(X(self._k))
+        if cov is None:
             return None
         A = se3_adjoint(st.T_world_body)
         return np.asarray(A @ cov @ A.T + self._cov_offset, dtype=np.float64)
@@ -353,28 +284,12 @@ class KeyframeEstimator:
         T = D @ st.T_world_body
         v = D[:3, :3] @ st.v_world
         moved = NavEstimate(st.t_ns, T, v, st.bg, st.ba)
-        c = self.cfg.init
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
-        graph.add(gtsam.PriorFactorPose3(X(k), pose(T), self._place_noise()))
-        graph.add(
-            gtsam.PriorFactorVector(
-                V(k), v, gtsam.noiseModel.Isotropic.Sigma(3, c.prior_vel_sigma_dynamic)
-            )
+        vel_sigma = self.cfg.init.prior_vel_sigma_dynamic
+        self._prior_state(
+            k, (T, v, bias(st.bg, st.ba)), self._place_noise(), vel_sigma, graph, values
         )
-        b = bias(st.bg, st.ba)
-        graph.add(
-            gtsam.PriorFactorConstantBias(
-                B(k),
-                b,
-                gtsam.noiseModel.Diagonal.Sigmas(
-                    np.array([c.prior_accel_bias_sigma] * 3 + [c.prior_gyro_bias_sigma] * 3)
-                ),
-            )
-        )
-        values.insert(X(k), pose(T))
-        values.insert(V(k), v)
-        values.insert(B(k), b)
         tk = self._t(st.t_ns)
         stamps = {X(k): tk, V(k): tk, B(k): tk}
         # the old smoother's landmarks come back under new keys, anchored where they are now
@@ -386,7 +301,7 @@ class KeyframeEstimator:
                     X(loop.k_cand), X(loop.k_query), pose(loop.T_cand_query), self._place_noise()
                 )
             )
-        self._make_smoother()
+        self._smoother = Smoother(self.cfg.backend)
         self._window = []
         self._update_smoother(graph, values, stamps)
         self._state = moved
@@ -398,33 +313,41 @@ class KeyframeEstimator:
                 self._cov_offset = cov_after - cov_prior
         return update
 
+    def _prior_state(
+        self,
+        k: int,
+        state: tuple[F64, F64, gtsam.imuBias.ConstantBias],
+        pose_noise: gtsam.noiseModel.Base,
+        vel_sigma: float,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+    ) -> None:
+        """Keyframe k's state (pose, velocity, biases) as values held by priors: the pose's
+        `pose_noise`, `vel_sigma` m/s, the initial bias sigmas (`init.prior_*_bias_sigma`)."""
+        c = self.cfg.init
+        T, v, b = state
+        graph.add(gtsam.PriorFactorPose3(X(k), pose(T), pose_noise))
+        graph.add(gtsam.PriorFactorVector(V(k), v, gtsam.noiseModel.Isotropic.Sigma(3, vel_sigma)))
+        sigmas = np.array([c.prior_accel_bias_sigma] * 3 + [c.prior_gyro_bias_sigma] * 3)
+        graph.add(gtsam.PriorFactorConstantBias(B(k), b, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+        values.insert(X(k), pose(T))
+        values.insert(V(k), v)
+        values.insert(B(k), b)
+
     def _add_loose_link(self, k: int, dt: float, graph: gtsam.NonlinearFactorGraph) -> None:
         """No usable IMU between k-1 and k: bias random walk and a loose velocity link (vision
         fixes the pose); visual-only, a weak prior keeps the unused biases determined."""
-        sg = self._rw_gyro * math.sqrt(max(dt, 1e-3))
-        sa = self._rw_acc * math.sqrt(max(dt, 1e-3))
-        graph.add(
-            gtsam.BetweenFactorConstantBias(
-                B(k - 1),
-                B(k),
-                gtsam.imuBias.ConstantBias(),
-                gtsam.noiseModel.Diagonal.Sigmas(np.array([sa] * 3 + [sg] * 3)),
-            )
-        )
-        graph.add(
-            gtsam.BetweenFactorVector(
-                V(k - 1),
-                V(k),
-                np.zeros(3),
-                gtsam.noiseModel.Isotropic.Sigma(3, 2.0 * max(dt, 0.05)),
-            )
-        )
+        sg = self._rw_gyro * math.sqrt(max(dt, MIN_DT_S))
+        sa = self._rw_acc * math.sqrt(max(dt, MIN_DT_S))
+        walk = gtsam.noiseModel.Diagonal.Sigmas(np.array([sa] * 3 + [sg] * 3))
+        zero = gtsam.imuBias.ConstantBias()
+        graph.add(gtsam.BetweenFactorConstantBias(B(k - 1), B(k), zero, walk))
+        dv_sigma = LOOSE_ACCEL_M_S2 * max(dt, LOOSE_MIN_DT_S)
+        dv_noise = gtsam.noiseModel.Isotropic.Sigma(3, dv_sigma)
+        graph.add(gtsam.BetweenFactorVector(V(k - 1), V(k), np.zeros(3), dv_noise))
         if self._imu is None:
-            graph.add(
-                gtsam.PriorFactorConstantBias(
-                    B(k), gtsam.imuBias.ConstantBias(), gtsam.noiseModel.Isotropic.Sigma(6, 1.0)
-                )
-            )
+            unused = gtsam.noiseModel.Isotropic.Sigma(6, UNUSED_BIAS_SIGMA)
+            graph.add(gtsam.PriorFactorConstantBias(B(k), zero, unused))
 
     # ---- smoother -------------------------------------------------------------------------------
     def _take(
@@ -465,20 +388,7 @@ class KeyframeEstimator:
     def _update_smoother(
         self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: dict[int, float]
     ) -> None:
-        try:
-            if self._smoother is not None:
-                ts = gtsam.FixedLagSmootherKeyTimestampMap()
-                for key, t in stamps.items():
-                    ts.insert((key, t))  # type: ignore[no-untyped-call]
-                self._smoother.update(graph, values, ts)
-                est = self._smoother.calculateEstimate()
-            else:
-                assert self._isam is not None
-                self._isam.update(graph, values)
-                est = self._isam.calculateEstimate()
-        except RuntimeError as e:
-            raise EstimatorFailure(f"smoother update failed: {e}") from None
-        self._est = est
+        self._est = est = self._smoother.update(graph, values, stamps)
         # landmarks still in the window, read in one call (keys sort 'l' before 'v': the
         # landmarks are the first rows of extractPoint3, which also returns the velocities)
         lidx = landmark_indices(est.keys())
