@@ -13,11 +13,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eurocslam.backend.estimator import KeyframeEstimator
-from eurocslam.backend.types import KeyframeUpdate, NavEstimate
+from eurocslam.backend.pose_graph import LoopEdge
+from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate
 from eurocslam.geometry import F64
+from eurocslam.pipeline.places import LoopFix
 from eurocslam.pipeline.records import KeyframePath
 from eurocslam.pipeline.segments import FrameRecord, Segment, extrapolate_last
 from eurocslam.pipeline.startup import Startup
+from eurocslam.places.loop_gate import yaw_and_translation
 from eurocslam.timebase import ns_to_s
 
 
@@ -77,3 +80,22 @@ class ActiveSegment:
             np.array([p[0] for p in self.kf_path], dtype=np.int64),
             np.array([p[1] for p in self.kf_path]),
         )
+
+    def close_loop(
+        self, fix: LoopFix, upd: KeyframeUpdate, inertial: bool
+    ) -> tuple[KeyframeUpdate, F64] | None:
+        """Move the estimate at keyframe `upd` onto the map it has come back to (`fix.D`; with
+        an IMU, roll and pitch are observed: yaw and position only): the smoother starts again
+        from the moved state, and the segment's final batch gets the loop edge when the
+        recognised keyframe is in this segment. The moved keyframe and the move; None when the
+        estimator cannot move."""
+        edge = (
+            LoopEdge(fix.cand_index, upd.index, fix.T_cand_query)
+            if fix.cand_segment == self.segment.index
+            else None
+        )
+        D = yaw_and_translation(fix.D, upd.nav.T_world_body[:3, 3]) if inertial else fix.D
+        try:
+            return self.est.reanchor(D, edge, fix.cov_after), D
+        except EstimatorFailure:
+            return None

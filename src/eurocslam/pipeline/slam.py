@@ -24,7 +24,6 @@ from threadpoolctl import threadpool_limits
 
 from eurocslam.backend.estimator import KeyframeEstimator
 from eurocslam.backend.health import Health
-from eurocslam.backend.pose_graph import LoopEdge
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate
 from eurocslam.config import RunConfig, resolve_mode
 from eurocslam.dataset.types import SequenceSource, has_imu
@@ -38,7 +37,7 @@ from eurocslam.maps.store import SavedMap
 from eurocslam.pipeline.active import ActiveSegment
 from eurocslam.pipeline.frames import WorldFrames
 from eurocslam.pipeline.outputs import RunOutputs
-from eurocslam.pipeline.places import LoopFix, PlaceStage
+from eurocslam.pipeline.places import PlaceStage
 from eurocslam.pipeline.records import (
     FrameObserver,
     FrameOutput,
@@ -51,7 +50,6 @@ from eurocslam.pipeline.segments import Segment
 from eurocslam.pipeline.session_map import MAP_SEGMENT, PriorMap, build_map, localized_after_s
 from eurocslam.pipeline.startup import Startup
 from eurocslam.pipeline.summary import RunSummary
-from eurocslam.places.loop_gate import yaw_and_translation
 from eurocslam.timebase import ns_to_s
 
 
@@ -135,7 +133,6 @@ class SlamPipeline:
         """The run's map for later sessions (after `run`); None without place recognition."""
         if self.places is None:
             return None
-
         return build_map(
             self.places,
             len(self.segments),
@@ -383,11 +380,12 @@ class SlamPipeline:
     def _place_keyframe(
         self, t: int, upd: KeyframeUpdate, fr: FrontendResult, correction: MapCorrection
     ) -> tuple[KeyframeUpdate, MapCorrection]:
-        """Merge (a segment after a reset) or loop closure at this keyframe, then file it; a
-        loop closed moves the keyframe's correction too."""
+        """Merge (a segment after a reset) or loop closure at this keyframe
+        (`ActiveSegment.close_loop`), then file it; a loop closed moves the keyframe's
+        correction too."""
         if self.places is None:
             return upd, correction
-        p, seg = self.places, self.segment.index
+        p, seg, inertial = self.places, self.segment.index, self.cfg.inertial
         for k, T in upd.window:
             p.update_pose(seg, k, T)
         view = p.keyframe_view(t, fr)
@@ -398,36 +396,16 @@ class SlamPipeline:
         else:
             loop = p.loop(view, seg, upd.nav.T_world_body, self.live.est.pose_covariance, upd.index)
             self.outputs.add_events(loop.events)
-            if loop.loop is not None:
-                upd, correction = self._close_loop(loop.loop, upd, correction)
+            closed = None if loop.loop is None else self.live.close_loop(loop.loop, upd, inertial)
+            if closed is not None:  # the estimate moved; the tracker's map moves with it
+                upd, D = closed
+                correction = correction.then_move(D, upd.nav.T_world_body)
         # the estimator's uncertainty, sampled for the loop gate (`PlaceStage.loop`)
         cov = None
         if self.live.covariance_due(t, self.cfg.places.loop_covariance_every_s):
             cov = self.live.est.pose_covariance()
         p.file(view, seg, upd.index, upd.nav.T_world_body, cov)
         return upd, correction
-
-    def _close_loop(
-        self, fix: LoopFix, upd: KeyframeUpdate, correction: MapCorrection
-    ) -> tuple[KeyframeUpdate, MapCorrection]:
-        """Move the online estimate onto the map it has come back to (`fix.D`): the smoother
-        starts again from the moved state, the tracker's map moves with it, and the segment's
-        final batch gets the loop edge when the recognised keyframe is in this segment."""
-        assert self.places is not None
-        edge = (
-            LoopEdge(fix.cand_index, upd.index, fix.T_cand_query)
-            if fix.cand_segment == self.segment.index
-            else None
-        )
-        D = fix.D
-        if self.cfg.inertial:  # roll and pitch are observed: the loop moves yaw and position
-            D = yaw_and_translation(D, upd.nav.T_world_body[:3, 3])
-        try:
-            moved = self.live.est.reanchor(D, edge, fix.cov_after)
-        except EstimatorFailure:
-            # the estimate stays where it was; map reuse may still close the loop
-            return upd, correction
-        return moved, correction.then_move(D, moved.nav.T_world_body)
 
     def _map_points(self, segment: int, ids: np.ndarray) -> F64:
         """The map's positions (N, 3) of landmarks by id in a segment's world (NaN: unknown):
