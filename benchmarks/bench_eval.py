@@ -23,7 +23,7 @@ from pathlib import Path
 
 from eurocslam.eval.evaluate import EvalConfig, evaluate
 from eurocslam.eval.synthetic import perturb, random_similarity, smooth_trajectory
-from eurocslam.io.trajectory_io import read_tum, write_tum
+from eurocslam.trajectory_io import read_tum, write_tum
 
 
 def _to_evo(tr):

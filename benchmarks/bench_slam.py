@@ -178,7 +178,7 @@ def run_one(
 
 def ate(seq: Path, est_path: Path) -> float:
     from eurocslam.eval.evaluate import EvalConfig, evaluate
-    from eurocslam.io.trajectory_io import read_euroc_csv, read_tum
+    from eurocslam.trajectory_io import read_euroc_csv, read_tum
 
     gt = read_euroc_csv(seq / "mav0" / "state_groundtruth_estimate0" / "data.csv")
     est = read_tum(est_path)

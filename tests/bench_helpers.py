@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from eurocslam.eval.synthetic import smooth_trajectory
-from eurocslam.io.trajectory_io import write_euroc_csv
+from eurocslam.trajectory_io import write_euroc_csv
 
 # argv: SEQ OUT [--no-imu] [extra run args...]. Writes a perturbed ground truth as the run's
 # trajectories; its noise follows --no-imu and the config's frontend.n_features (so configs
@@ -19,7 +19,7 @@ FAKE_RUN = """
 import os, signal, sys, time, pathlib
 import yaml
 from eurocslam.eval.synthetic import perturb, random_similarity
-from eurocslam.io.trajectory_io import read_trajectory, write_tum
+from eurocslam.trajectory_io import read_trajectory, write_tum
 seq, out = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
 with open(seq.parent / "calls.txt", "a") as f:
     f.write(" ".join(sys.argv[1:]) + "\\n")

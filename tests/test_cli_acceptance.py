@@ -145,7 +145,7 @@ def test_trajectories_with_a_byte_order_mark(tmp_path: Path) -> None:
     """Windows editors and spreadsheets start files with a UTF-8 BOM; the ASL reader accepted it
     but TUM/EuRoC CSV trajectories failed on their first line."""
     from eurocslam.errors import EvalError
-    from eurocslam.io.trajectory_io import read_trajectory
+    from eurocslam.trajectory_io import read_trajectory
 
     bom = "\ufeff"
     tum_lines = [f"{1.4e9 + 0.05 * k:.2f} {0.1 * k} 0 0 0 0 0 1" for k in range(5)]

@@ -11,8 +11,8 @@ import pytest
 from eurocslam.cli import main
 from eurocslam.eval.synthetic import perturb, random_similarity, smooth_trajectory
 from eurocslam.geometry import wxyz_to_xyzw
-from eurocslam.io.trajectory_io import write_euroc_csv, write_tum
 from eurocslam.trajectory import Trajectory
+from eurocslam.trajectory_io import write_euroc_csv, write_tum
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -15,8 +15,8 @@ from eurocslam.eval.joint import evaluate_joint
 from eurocslam.eval.report import joint_json_dict, joint_note, joint_report
 from eurocslam.eval.synthetic import perturb, random_similarity, smooth_trajectory
 from eurocslam.geometry import make_T
-from eurocslam.io.trajectory_io import write_euroc_csv, write_tum
 from eurocslam.trajectory import Trajectory
+from eurocslam.trajectory_io import write_euroc_csv, write_tum
 
 DAY_NS = 86_400 * 10**9
 

@@ -22,7 +22,7 @@ CHECKED = (
     "eurocslam.synth",
     "eurocslam.timebase",
     "eurocslam.trajectory",
-    "eurocslam.io.trajectory_io",
+    "eurocslam.trajectory_io",
     "eurocslam.convert",
     "eurocslam.commands",
 )

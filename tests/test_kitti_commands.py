@@ -20,8 +20,8 @@ from eurocslam.dataset.doctor.kitti_checks import diagnose_kitti
 from eurocslam.eval.synthetic import perturb, random_similarity
 from eurocslam.frontend.stereo import StereoRectifier
 from eurocslam.geometry import make_T, so3_exp
-from eurocslam.io.trajectory_io import write_tum
 from eurocslam.trajectory import Trajectory
+from eurocslam.trajectory_io import write_tum
 from kitti_helpers import BASELINE, CX, CY, FX, make_kitti
 
 

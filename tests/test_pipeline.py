@@ -17,7 +17,8 @@ from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import GroundTruth, ImuData, PositionData, SkipReport, StereoFrame
 from eurocslam.eval.evaluate import evaluate
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.pipeline.records import FrameOutput, PipelineState, RunResult
+from eurocslam.pipeline.outputs import RunResult
+from eurocslam.pipeline.records import FrameOutput, PipelineState
 from eurocslam.pipeline.slam import SlamPipeline
 from eurocslam.trajectory import Trajectory
 
@@ -212,8 +213,8 @@ def test_reset_starts_a_new_segment(synth_seq: Path, tmp_path: Path) -> None:
     """Blind for longer than allowed: the segment ends, the estimator re-initialises (moving:
     dynamic init), the outputs carry segment ids, and nearly every frame still has a pose."""
     from eurocslam.config import config_from_dict
-    from eurocslam.io.trajectory_io import read_tum
     from eurocslam.runner import write_outputs
+    from eurocslam.trajectory_io import read_tum
 
     # without place recognition (with it, the run finds its map again: the test below)
     cfg = config_from_dict({"health": {"max_lost_s": 0.2}, "places": {"enabled": False}})

@@ -12,7 +12,8 @@ import pytest
 from eurocslam.config import config_from_dict
 from eurocslam.dataset import open_sequence
 from eurocslam.eval.align import align
-from eurocslam.pipeline.records import FrameOutput, PipelineState, PlaceEvent, PlaceKind, RunResult
+from eurocslam.pipeline.outputs import RunResult
+from eurocslam.pipeline.records import FrameOutput, PipelineState, PlaceEvent, PlaceKind
 from eurocslam.pipeline.slam import SlamPipeline
 
 FLIGHT_S = 30.0

@@ -16,11 +16,11 @@ from eurocslam.cli import main
 from eurocslam.config import load_config
 from eurocslam.dataset import open_sequence
 from eurocslam.io.ply import read_ply
-from eurocslam.io.trajectory_io import read_euroc_csv, read_tum
 from eurocslam.pipeline.summary import RunSummary
 from eurocslam.run_options import RunOptions
 from eurocslam.runner import run_slam
 from eurocslam.synth import SynthSpec, synthesize
+from eurocslam.trajectory_io import read_euroc_csv, read_tum
 
 SLAM_TOPICS = {
     "/tf",

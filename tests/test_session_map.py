@@ -20,7 +20,7 @@ from eurocslam.trajectory import Trajectory
 
 
 def _final(out: Path) -> Trajectory:
-    from eurocslam.io.trajectory_io import read_trajectory
+    from eurocslam.trajectory_io import read_trajectory
 
     return read_trajectory(out / "trajectory_final.csv")
 

@@ -11,11 +11,11 @@ import pytest
 
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import make_T
-from eurocslam.io.trajectory_io import read_trajectory, write_tum
 from eurocslam.synth import Scene, SynthSpec
 from eurocslam.synth.render import cast_and_shade
 from eurocslam.synth.shared_world import MIN_OBSTACLE_M, check_flight_inside, read_flights
 from eurocslam.trajectory import Trajectory
+from eurocslam.trajectory_io import read_trajectory, write_tum
 
 T0_NS = 1_403_636_580_000_000_000
 

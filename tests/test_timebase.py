@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from eurocslam.errors import DatasetError, EvalError
-from eurocslam.io.trajectory_io import read_euroc_csv, read_tum
 from eurocslam.timebase import (
     ABSOLUTE_NS_MIN,
     NS_MIN,
@@ -30,6 +29,7 @@ from eurocslam.timebase import (
     unit_hint,
     unit_outliers,
 )
+from eurocslam.trajectory_io import read_euroc_csv, read_tum
 
 
 @pytest.mark.parametrize(

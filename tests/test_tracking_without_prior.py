@@ -13,7 +13,7 @@ from eurocslam.config import RunConfig
 from eurocslam.dataset import open_sequence
 from eurocslam.eval.align import align
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.pipeline.records import RunResult
+from eurocslam.pipeline.outputs import RunResult
 from eurocslam.pipeline.slam import SlamPipeline
 from eurocslam.synth import SynthSpec, synthesize
 

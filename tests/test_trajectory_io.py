@@ -9,7 +9,9 @@ import pytest
 
 from eurocslam.errors import EvalError
 from eurocslam.eval.synthetic import smooth_trajectory
-from eurocslam.io.trajectory_io import (
+from eurocslam.timebase import ns_to_seconds_str, seconds_str_to_ns
+from eurocslam.trajectory import Trajectory
+from eurocslam.trajectory_io import (
     count_repeated_stamps,
     read_euroc_csv,
     read_trajectory,
@@ -17,8 +19,6 @@ from eurocslam.io.trajectory_io import (
     write_euroc_csv,
     write_tum,
 )
-from eurocslam.timebase import ns_to_seconds_str, seconds_str_to_ns
-from eurocslam.trajectory import Trajectory
 
 
 def _traj(n: int = 50, seed: int = 0) -> Trajectory:

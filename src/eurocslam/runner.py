@@ -39,14 +39,15 @@ from eurocslam.errors import OutputError
 from eurocslam.io.ply import write_ply
 from eurocslam.io.sink import Sink
 from eurocslam.io.staging import StagedOutputs
-from eurocslam.io.trajectory_io import write_euroc_csv, write_tum
 from eurocslam.maps.store import save_map
-from eurocslam.pipeline.records import FrameOutput, RunResult
+from eurocslam.pipeline.outputs import RunResult
+from eurocslam.pipeline.records import FrameOutput
 from eurocslam.pipeline.session_map import PriorMap
 from eurocslam.pipeline.slam import SlamPipeline
 from eurocslam.progress import bar
 from eurocslam.run_options import COMPRESSIONS, IMAGE_MODES, RunOptions
 from eurocslam.trajectory import Trajectory
+from eurocslam.trajectory_io import write_euroc_csv, write_tum
 
 logger = logging.getLogger(__name__)
 

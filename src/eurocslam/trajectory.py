@@ -7,7 +7,7 @@
   segment; each segment lives in its own world frame and is aligned on its own by `eval`.
 
 A core type: it imports no I/O. Files (TUM, EuRoC CSV) are read and written by
-`eurocslam.io.trajectory_io`.
+`eurocslam.trajectory_io`.
 """
 
 from __future__ import annotations

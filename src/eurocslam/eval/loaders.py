@@ -2,7 +2,7 @@
 
 Estimate inputs:
 
-* a TUM or EuRoC CSV file (format detected from the content, `io.trajectory_io`);
+* a TUM or EuRoC CSV file (format detected from the content, `trajectory_io`);
 * a run output folder: `trajectory_final.tum` (smoothed, "final") and `trajectory_online.tum`
   (causal, per frame, "online"); falls back to `run.mcap` (`/slam/path_final`, `/slam/pose`)
   when neither file exists;
@@ -29,8 +29,8 @@ import numpy as np
 from eurocslam.dataset.kitti_files import is_kitti_sequence, looks_like_kitti_poses
 from eurocslam.errors import EurocSlamError, EvalError
 from eurocslam.eval.kitti_gt import kitti_groundtruth
-from eurocslam.io.trajectory_io import TimeUnit, count_repeated_stamps, read_trajectory
 from eurocslam.trajectory import Trajectory
+from eurocslam.trajectory_io import TimeUnit, count_repeated_stamps, read_trajectory
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 DEFAULT_EST_TOPIC = "/slam/pose"

@@ -44,7 +44,8 @@ from eurocslam.geometry import F64, inv_T, make_T, quat_wxyz_to_rot, rot_z, wxyz
 from eurocslam.io import drone, ros2
 from eurocslam.io.sensor_streams import FRAME_GT_BODY, FRAME_GT_WORLD, SensorStreams
 from eurocslam.io.sink import Sink
-from eurocslam.pipeline.records import STATE_CODE, FrameOutput, RunResult
+from eurocslam.pipeline.outputs import RunResult
+from eurocslam.pipeline.records import STATE_CODE, FrameOutput
 
 WORLD = "world"
 BODY = "body"

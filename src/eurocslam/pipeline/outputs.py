@@ -9,8 +9,10 @@ trajectory (every pose as it was output), and assembles the `RunResult` at the e
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from eurocslam.backend.types import NavEstimate
 from eurocslam.frontend.types import FrontendResult
@@ -21,7 +23,6 @@ from eurocslam.pipeline.records import (
     KeyframePath,
     PipelineState,
     PlaceEvent,
-    RunResult,
 )
 from eurocslam.pipeline.segments import Segment, assemble
 from eurocslam.pipeline.summary import RunSummary
@@ -111,3 +112,16 @@ class RunOutputs:
             final.landmark_segment,
             summary,
         )
+
+
+@dataclass
+class RunResult:
+    """A run's trajectories (every frame's pose, with the world frame it is in as its segment
+    id: online, as each frame was processed; final, after the final batch), the final map (with
+    each landmark's frame) and the summary."""
+
+    online: Trajectory
+    final: Trajectory
+    landmarks: F64  # (M, 3) batch-optimised map
+    landmark_segment: NDArray[np.int64]
+    summary: RunSummary

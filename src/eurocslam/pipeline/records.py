@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -14,10 +14,6 @@ from eurocslam.backend.types import NavEstimate
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.types import FrontendResult
 from eurocslam.geometry import F64
-from eurocslam.trajectory import Trajectory
-
-if TYPE_CHECKING:
-    from eurocslam.pipeline.summary import RunSummary
 
 
 class PlaceKind(str, Enum):
@@ -110,16 +106,3 @@ class FrameOutput:
 
 class FrameObserver(Protocol):
     def on_frame(self, frame: StereoFrame, out: FrameOutput) -> None: ...
-
-
-@dataclass
-class RunResult:
-    """A run's trajectories (every frame's pose, with the world frame it is in as its segment
-    id: online, as each frame was processed; final, after the final batch), the final map (with
-    each landmark's frame) and the summary."""
-
-    online: Trajectory
-    final: Trajectory
-    landmarks: F64  # (M, 3) batch-optimised map
-    landmark_segment: NDArray[np.int64]
-    summary: RunSummary

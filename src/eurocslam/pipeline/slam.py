@@ -36,14 +36,13 @@ from eurocslam.geometry import F64, inv_T
 from eurocslam.maps.store import SavedMap
 from eurocslam.pipeline.active import ActiveSegment
 from eurocslam.pipeline.frames import WorldFrames
-from eurocslam.pipeline.outputs import RunOutputs
+from eurocslam.pipeline.outputs import RunOutputs, RunResult
 from eurocslam.pipeline.places import PlaceStage
 from eurocslam.pipeline.records import (
     FrameObserver,
     FrameOutput,
     KeyframePath,
     PipelineState,
-    RunResult,
 )
 from eurocslam.pipeline.recovery import LostAction, Recovery
 from eurocslam.pipeline.segments import Segment

@@ -139,7 +139,7 @@ class GroundTruthInput:
 
 def read_groundtruth_file(path: Path) -> GroundTruthInput:
     """Read a TUM or EuRoC CSV trajectory; a 17-column ASL ground truth also gives biases."""
-    from eurocslam.io.trajectory_io import read_trajectory
+    from eurocslam.trajectory_io import read_trajectory
 
     path = Path(path)
     if not path.is_file():

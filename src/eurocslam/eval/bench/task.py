@@ -27,7 +27,7 @@ from eurocslam.eval.evaluate import EvalConfig, EvalResult, evaluate
 from eurocslam.eval.kitti_gt import kitti_groundtruth
 from eurocslam.eval.loaders import RUN_FINAL, RUN_ONLINE, groundtruth_csv_of
 from eurocslam.eval.report import markdown_report, to_json_dict, write_json, write_text
-from eurocslam.io.trajectory_io import read_trajectory
+from eurocslam.trajectory_io import read_trajectory
 
 RECORD_FILE = "bench_run.json"  # written last: its presence means the run finished
 CONFIG_FILE = "bench_config.yaml"  # the configuration the run was given
