@@ -9,12 +9,10 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from eurocslam.dataset.bag.calibration import BUILTIN, gt_sensor_extrinsic, resolve_calibration
 from eurocslam.dataset.bag.files import bag_kind, is_bag_path, open_reader
@@ -28,7 +26,14 @@ from eurocslam.dataset.bag.messages import (
     stamp_of,
 )
 from eurocslam.dataset.bag.pairing import BagEntry, camera_map, join_cameras, snap_cam1
-from eurocslam.dataset.bag.topics import REQUIRED_ROLES, ROLE_TYPES, ROLES, TopicMap
+from eurocslam.dataset.bag.topics import (
+    REQUIRED_ROLES,
+    ROLE_TYPES,
+    ROLES,
+    ImageInfo,
+    TopicMap,
+    TopicStats,
+)
 from eurocslam.dataset.calib import StereoRig, calib_folder
 from eurocslam.dataset.types import (
     I64,
@@ -50,53 +55,6 @@ from eurocslam.geometry import (
     rot_to_quat_wxyz,
     xyzw_to_wxyz,
 )
-
-
-@dataclass
-class TopicStats:
-    """Stamps of one role's topic in the order the bag stores them (log-time order)."""
-
-    role: str
-    topic: str
-    msgtype: str
-    header_ns: list[int] | I64 = field(default_factory=list)  # lists while scanning,
-    log_ns: list[int] | I64 = field(default_factory=list)  # int64 arrays after `freeze`
-
-    def freeze(self) -> None:
-        """Turn the stamp lists into int64 arrays (a quarter of the memory)."""
-        self.header_ns = np.asarray(self.header_ns, dtype=np.int64)
-        self.log_ns = np.asarray(self.log_ns, dtype=np.int64)
-
-    @property
-    def count(self) -> int:
-        return len(self.log_ns)
-
-    def header_array(self) -> I64:
-        return np.asarray(self.header_ns, dtype=np.int64)
-
-    def log_array(self) -> I64:
-        return np.asarray(self.log_ns, dtype=np.int64)
-
-    def unset_stamps(self) -> NDArray[np.bool_]:
-        """Messages whose header stamp is zero though they were logged later: the stamp was never
-        set (a stamp and log time both 0, as a sequence whose times start at 0 has, is real)."""
-        unset: NDArray[np.bool_] = (self.header_array() == 0) & (self.log_array() != 0)
-        return unset
-
-    @property
-    def zero_stamps(self) -> int:
-        return int(np.count_nonzero(self.unset_stamps()))
-
-
-@dataclass(frozen=True)
-class ImageInfo:
-    """What the first message of a camera topic says about its images."""
-
-    topic: str
-    msgtype: str
-    encoding: str  # Image encoding, or CompressedImage format
-    width: int
-    height: int
 
 
 class BagSequence:

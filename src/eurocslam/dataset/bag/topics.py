@@ -1,12 +1,17 @@
 """Which bag topic plays which role (cam0, cam1, imu, groundtruth, leica), and the message types a
-role accepts. Defaults cover EuRoC's ROS 1 bags and the MCAPs `eurocslam convert` writes."""
+role accepts. Defaults cover EuRoC's ROS 1 bags and the MCAPs `eurocslam convert` writes. What
+the scan learns of a role's topic: its stamps (`TopicStats`), a camera's images (`ImageInfo`)."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
+from eurocslam.dataset.types import I64
 from eurocslam.errors import DatasetError
 
 ROLES = ("cam0", "cam1", "imu", "groundtruth", "leica")
@@ -91,3 +96,50 @@ ROLE_TYPES: dict[str, tuple[str, ...]] = {
 
 ROLE_FIELDS = tuple(f.name for f in fields(TopicMap) if f.name != "explicit")
 assert ROLE_FIELDS == ROLES
+
+
+@dataclass
+class TopicStats:
+    """Stamps of one role's topic in the order the bag stores them (log-time order)."""
+
+    role: str
+    topic: str
+    msgtype: str
+    header_ns: list[int] | I64 = field(default_factory=list)  # lists while scanning,
+    log_ns: list[int] | I64 = field(default_factory=list)  # int64 arrays after `freeze`
+
+    def freeze(self) -> None:
+        """Turn the stamp lists into int64 arrays (a quarter of the memory)."""
+        self.header_ns = np.asarray(self.header_ns, dtype=np.int64)
+        self.log_ns = np.asarray(self.log_ns, dtype=np.int64)
+
+    @property
+    def count(self) -> int:
+        return len(self.log_ns)
+
+    def header_array(self) -> I64:
+        return np.asarray(self.header_ns, dtype=np.int64)
+
+    def log_array(self) -> I64:
+        return np.asarray(self.log_ns, dtype=np.int64)
+
+    def unset_stamps(self) -> NDArray[np.bool_]:
+        """Messages whose header stamp is zero though they were logged later: the stamp was never
+        set (a stamp and log time both 0, as a sequence whose times start at 0 has, is real)."""
+        unset: NDArray[np.bool_] = (self.header_array() == 0) & (self.log_array() != 0)
+        return unset
+
+    @property
+    def zero_stamps(self) -> int:
+        return int(np.count_nonzero(self.unset_stamps()))
+
+
+@dataclass(frozen=True)
+class ImageInfo:
+    """What the first message of a camera topic says about its images."""
+
+    topic: str
+    msgtype: str
+    encoding: str  # Image encoding, or CompressedImage format
+    width: int
+    height: int
