@@ -179,7 +179,7 @@ def resolve_time(value: float | None, t_ref_ns: int) -> int | None:
         return None
     if abs(value) >= ABSOLUTE_NS_MIN:
         return int(value)
-    return t_ref_ns + round(value * 1e9)
+    return t_ref_ns + s_to_ns(value)
 
 
 # ---- columns and streams ----------------------------------------------------------------------

@@ -23,6 +23,7 @@ from eurocslam.config import ImuConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
 from eurocslam.geometry import F64
+from eurocslam.timebase import ns_to_s
 
 
 def make_params(
@@ -81,7 +82,7 @@ def integrate(
     i0 = max(i0, 0)
     i1 = min(i1, t.size - 1)
     if t.size == 0 or i1 < i0 or (i1 == i0 and not covered and t[i0] > t1_ns):
-        return SpanInfo(0, (t1_ns - t0_ns) * 1e-9, False)
+        return SpanInfo(0, ns_to_s(t1_ns - t0_ns), False)
     ts = t[i0 : i1 + 1].astype(np.int64)
     gyro = imu.gyro[i0 : i1 + 1]
     acc = imu.accel[i0 : i1 + 1]
@@ -91,7 +92,7 @@ def integrate(
     ends[:-1] = ts[1:]
     ends[-1] = max(int(ts[-1]), t1_ns)
     ends = np.minimum(ends, t1_ns)
-    dts = (ends - starts) * 1e-9
+    dts = ns_to_s(ends - starts)
     mids = 0.5 * (starts + ends)
     seg = np.maximum(np.diff(ts).astype(np.float64), 1.0)
     w = np.zeros(ts.size)
@@ -104,12 +105,12 @@ def integrate(
         pim.integrateMeasurement(a_mid[k], g_mid[k], float(dts[k]))
     # a gap is the spacing of the samples around an integrated interval, however little of it
     # falls in this span: a span inside a dropout is integrated from samples seconds apart
-    spacing = np.append(np.diff(ts), 0) * 1e-9
+    spacing = ns_to_s(np.append(np.diff(ts), 0))
     gaps = spacing[dts > 0.0]
     if ts[0] > t0_ns:
-        gaps = np.append(gaps, (ts[0] - t0_ns) * 1e-9)
+        gaps = np.append(gaps, ns_to_s(ts[0] - t0_ns))
     if ts[-1] < t1_ns:
-        gaps = np.append(gaps, (t1_ns - ts[-1]) * 1e-9)
+        gaps = np.append(gaps, ns_to_s(t1_ns - ts[-1]))
     return SpanInfo(int(ts.size), float(np.max(gaps)) if gaps.size else 0.0, covered)
 
 
@@ -122,5 +123,5 @@ def gap_in(imu: ImuData, t0_ns: int, t1_ns: int) -> float:
     pts = np.clip(pts, t0_ns, t1_ns)
     pts = np.concatenate([[t0_ns] if i0 < 0 else [], pts, [t1_ns] if i1 >= t.size else []])
     if pts.size < 2:
-        return (t1_ns - t0_ns) * 1e-9
-    return float(np.max(np.diff(pts))) * 1e-9
+        return ns_to_s(t1_ns - t0_ns)
+    return ns_to_s(float(np.max(np.diff(pts))))

@@ -22,6 +22,7 @@ from eurocslam.camera import RectifiedStereo
 from eurocslam.dataset.calib import default_rig
 from eurocslam.dataset.types import ImuData
 from eurocslam.geometry import F64, inv_T, make_T, so3_exp, so3_log
+from eurocslam.timebase import NS_PER_S
 
 # EuRoC-like mounting: body x points up (world z), body z forward (world x), body y = z cross x
 R_WORLD_BODY_BASE = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])
@@ -116,7 +117,7 @@ def imu_from_motion(
         gyro += rng.normal(0.0, gyro_sigma, gyro.shape)
     if accel_sigma > 0:
         acc += rng.normal(0.0, accel_sigma, acc.shape)
-    t_ns = t0_ns + np.round(ts * 1e9).astype(np.int64)
+    t_ns = t0_ns + np.round(ts * NS_PER_S).astype(np.int64)
     return ImuData(t_ns, gyro, acc)
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from eurocslam.commands._args import non_negative_float
 from eurocslam.errors import EurocSlamError
+from eurocslam.timebase import NS_PER_S
 
 NAME = "play"
 HELP = "serve a recorded MCAP (e.g. OUT/run.mcap) live to Foxglove over WebSocket"
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
     info = read_mcap_info(args.mcap)
     if info.message_count == 0:
         raise EurocSlamError(f"{info.path}: the MCAP holds no messages")
-    span_s = (info.end_ns - info.start_ns) / 1e9
+    span_s = (info.end_ns - info.start_ns) / NS_PER_S
     sink = LiveSink(
         host=args.host,
         port=args.port,
@@ -117,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         shown = [0.0]
 
         def on_message(t_ns: int) -> None:
-            done = round((t_ns - info.start_ns) / 1e9, 1)
+            done = round((t_ns - info.start_ns) / NS_PER_S, 1)
             if done > shown[0]:
                 pb.update(done - shown[0])
                 shown[0] = done

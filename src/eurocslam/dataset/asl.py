@@ -40,7 +40,7 @@ from eurocslam.dataset.types import (
 from eurocslam.errors import DatasetError
 from eurocslam.geometry import normalize_quat
 from eurocslam.textfile import read_text
-from eurocslam.timebase import magnitude, parse_timestamp, unit_outliers
+from eurocslam.timebase import NS_PER_S, magnitude, parse_timestamp, unit_outliers
 
 SENSORS = ("cam0", "cam1", "imu0", "state_groundtruth_estimate0", "leica0")
 
@@ -340,7 +340,7 @@ class AslSequence(ImageFileFrames):
         t = tab.t_ns[idx]
         rate_hz = self.rig.imu.rate_hz if self.rig.imu is not None else 0.0
         if rate_hz > 0 and t.size > 1:
-            period_ns = 1e9 / rate_hz
+            period_ns = NS_PER_S / rate_hz
             dt = np.diff(t)
             for i in np.nonzero(dt > 1.5 * period_ns)[0].tolist():
                 self.skips.add(

@@ -29,6 +29,7 @@ import numpy as np
 from eurocslam.dataset.kitti_files import is_kitti_sequence, looks_like_kitti_poses
 from eurocslam.errors import EurocSlamError, EvalError
 from eurocslam.eval.kitti_gt import kitti_groundtruth
+from eurocslam.timebase import stamp_ns
 from eurocslam.trajectory import Trajectory
 from eurocslam.trajectory_io import TimeUnit, count_repeated_stamps, read_trajectory
 
@@ -101,7 +102,7 @@ def _notes(traj: Trajectory) -> list[str]:
 
 
 def _stamp(header: Any) -> int:
-    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    return stamp_ns(header.stamp.sec, header.stamp.nanosec)
 
 
 def _pose_row(pose: Any) -> list[float]:

@@ -20,6 +20,7 @@ import numpy as np
 from eurocslam.errors import OutputError
 from eurocslam.eval.evaluate import EvalResult
 from eurocslam.eval.joint import JointResult
+from eurocslam.timebase import NS_PER_S
 
 GT_COLOR = "0.35"
 SEG_COLORS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown"]
@@ -98,7 +99,7 @@ def plot_error(r: EvalResult, path: Path) -> Path:
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
     t0 = _t0(r)
     for k, s in enumerate(r.segments):
-        t = (s.t_ns - t0) / 1e9
+        t = (s.t_ns - t0) / NS_PER_S
         c = SEG_COLORS[k % len(SEG_COLORS)]
         lab = None if len(r.segments) == 1 else f"segment {s.segment}"
         a1.plot(t, s.ate_t, color=c, lw=1, label=lab)
@@ -143,7 +144,7 @@ def plot_xyz(r: EvalResult, path: Path) -> Path:
     fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
     t0 = _t0(r)
     for k, s in enumerate(r.segments):
-        t = (s.t_ns - t0) / 1e9
+        t = (s.t_ns - t0) / NS_PER_S
         c = SEG_COLORS[k % len(SEG_COLORS)]
         for i, a in enumerate(axes):
             a.plot(

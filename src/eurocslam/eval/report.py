@@ -12,6 +12,7 @@ from eurocslam.eval.align import Alignment
 from eurocslam.eval.evaluate import MIN_FRACTION_LENGTH_M, EvalResult
 from eurocslam.eval.joint import JointResult
 from eurocslam.eval.metrics import Stats
+from eurocslam.timebase import NS_PER_S
 
 SCHEMA = "eurocslam.eval/1"
 
@@ -158,7 +159,7 @@ def markdown(r: EvalResult, title: str | None = None) -> str:
         ]
         for s in r.segments:
             a = s.association
-            dur = (s.t_ns[-1] - s.t_ns[0]) / 1e9
+            dur = (s.t_ns[-1] - s.t_ns[0]) / NS_PER_S
             al = s.alignment
             out.append(
                 f"| {s.segment} | {a.matched} / {a.possible} | {dur:.1f} | {s.gt_length_m:.2f} "

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from eurocslam.geometry import F64, make_T, so3_exp
+from eurocslam.timebase import NS_PER_S
 from eurocslam.trajectory import Trajectory
 
 T0_NS = 1_403_636_580_838_555_648  # an EuRoC-like epoch
@@ -43,9 +44,9 @@ def smooth_trajectory(
 ) -> Trajectory:
     """`n` poses at `rate_hz` of a smooth 3-D flight (metres, a few m/s)."""
     rng = np.random.default_rng(seed)
-    dt_ns = round(1e9 / rate_hz)
+    dt_ns = round(NS_PER_S / rate_hz)
     t_ns = t0_ns + np.arange(n, dtype=np.int64) * dt_ns
-    t = (t_ns - t0_ns) / 1e9
+    t = (t_ns - t0_ns) / NS_PER_S
     p = np.zeros((n, 3))
     for k, amp in enumerate((3.0, 3.0, 0.6)):
         for _ in range(3):
@@ -71,7 +72,7 @@ def straight_road(
     """A car on a straight road: `n` poses at `rate_hz` over `length_m` along `direction`, with
     `wiggle_m` of lateral (and half of it vertical) wiggle (0: exactly collinear positions),
     heading along the road with a little roll and pitch."""
-    t = t0_ns + np.arange(n, dtype=np.int64) * round(1e9 / rate_hz)
+    t = t0_ns + np.arange(n, dtype=np.int64) * round(NS_PER_S / rate_hz)
     e0 = np.asarray(direction, dtype=np.float64) / np.linalg.norm(direction)
     e1 = np.cross([0.0, 0.0, 1.0], e0) if abs(e0[2]) < 0.9 else np.cross([1.0, 0.0, 0.0], e0)
     e1 /= np.linalg.norm(e1)

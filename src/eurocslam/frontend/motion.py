@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from eurocslam.geometry import F64, inv_T, make_T, rigid, so3_exp, so3_log
+from eurocslam.timebase import ns_to_s
 
 
 class VelocityModel:
@@ -20,7 +21,7 @@ class VelocityModel:
 
     def update(self, t_ns: int, T_world_body: F64) -> None:
         if self.T is not None and self.t_ns is not None and t_ns > self.t_ns:
-            dt = (t_ns - self.t_ns) * 1e-9
+            dt = ns_to_s(t_ns - self.t_ns)
             d = inv_T(self.T) @ T_world_body
             v = d[:3, 3] / dt
             w = so3_log(d[:3, :3]) / dt
@@ -41,5 +42,5 @@ class VelocityModel:
     def predict(self, t_ns: int) -> F64 | None:
         if self.T is None or self.t_ns is None:
             return None
-        dt = max(0.0, (t_ns - self.t_ns) * 1e-9)
+        dt = max(0.0, ns_to_s(t_ns - self.t_ns))
         return rigid(self.T @ make_T(so3_exp(self.w * dt), self.v * dt))

@@ -14,9 +14,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from eurocslam.geometry import F64, rot_to_quat_wxyz, wxyz_to_xyzw
+from eurocslam.timebase import NS_PER_S
 
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
-NS_PER_SEC = 1_000_000_000
 _I32 = struct.Struct("<i")
 _U32 = struct.Struct("<I")
 _F32 = struct.Struct("<f")
@@ -32,7 +32,7 @@ def stamp_bytes(t_ns: int) -> bytes:
 def split_ns(t_ns: int) -> tuple[int, int]:
     """(sec, nanosec) of a ROS time from int64 nanoseconds."""
     t = int(t_ns)
-    return t // NS_PER_SEC, t % NS_PER_SEC
+    return t // NS_PER_S, t % NS_PER_S
 
 
 class CdrWriter:

@@ -36,6 +36,7 @@ import numpy as np
 from eurocslam.dataset.calib import StereoRig, default_rig
 from eurocslam.geometry import F64, make_T
 from eurocslam.io import cdr, ros2
+from eurocslam.timebase import NS_PER_S
 
 CUBE = ros2.MarkerType.CUBE
 SPHERE = ros2.MarkerType.SPHERE
@@ -97,7 +98,7 @@ def _shade(color: Rgba, alpha: float) -> Rgba:
 def rotor_angle(t_ns: int, index: int, spin_hz: float = DEFAULT_SPIN_HZ) -> float:
     """Propeller yaw [rad] about its motor axis at time `t_ns`, in [0, 2 pi)."""
     # whole seconds and nanoseconds apart, so epoch timestamps (~1.4e18 ns) keep full precision
-    turns = (int(t_ns) % 10**9) * spin_hz / 1e9 + (int(t_ns) // 10**9) * spin_hz
+    turns = (int(t_ns) % NS_PER_S) * spin_hz / NS_PER_S + (int(t_ns) // NS_PER_S) * spin_hz
     return (ROTOR_DIRECTIONS[index] * 2.0 * math.pi * (turns % 1.0)) % (2.0 * math.pi)
 
 

@@ -31,6 +31,7 @@ from eurocslam.errors import OutputError
 from eurocslam.io import ros2
 from eurocslam.io.mcap_chunks import COMPRESSIONS, ZSTD_LEVEL, ChunkedWriter
 from eurocslam.io.qos import LATCHED_TOPICS, qos_profile_yaml
+from eurocslam.timebase import NS_PER_S
 
 
 @dataclass
@@ -73,7 +74,7 @@ class WriteSummary:
             out.append(f"{name:<{wn}} {s.msgtype:<{wt}} {s.count:>9} {s.bytes / 1e6:>9.2f}")
         span = 0.0
         if self.start_ns is not None and self.end_ns is not None:
-            span = (self.end_ns - self.start_ns) / 1e9
+            span = (self.end_ns - self.start_ns) / NS_PER_S
         out.append(
             f"{self.message_count} messages, {span:.3f} s "
             f"({self.start_ns} .. {self.end_ns} ns), file {self.file_bytes / 1e6:.2f} MB: "

@@ -9,6 +9,8 @@ import threading
 import time
 from collections.abc import Callable
 
+from eurocslam.timebase import NS_PER_S
+
 _MAX_LAG_S = 0.5  # when the producer falls this far behind the pacing clock, re-anchor it
 
 
@@ -98,7 +100,7 @@ class PacingClock:
                     self._anchor = (t_ns, now)
                     break
                 t0, w0 = self._anchor
-                due = w0 + (t_ns - t0) / 1e9 / self._rate
+                due = w0 + (t_ns - t0) / NS_PER_S / self._rate
                 if now >= due:
                     if now - due > _MAX_LAG_S:  # the producer is behind: do not burst later
                         self._anchor = (t_ns, now)

@@ -47,7 +47,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from eurocslam.geometry import F64
-from eurocslam.io.cdr import CDR_LE_HEADER, NS_PER_SEC, CdrWriter, pose7, poses7, split_ns
+from eurocslam.io.cdr import CDR_LE_HEADER, CdrWriter, pose7, poses7, split_ns
+from eurocslam.timebase import NS_PER_S
 
 # message type names (MCAP schema names)
 IMAGE = "sensor_msgs/msg/Image"
@@ -309,8 +310,8 @@ def path(t_ns: int, frame_id: str, stamps_ns: ArrayLike, poses: ArrayLike) -> by
             + [("pose", "<f8", (7,))]
         )
         rows = np.zeros(st.size - 1, dtype=dt)
-        rows["sec"] = st[1:] // NS_PER_SEC
-        rows["nsec"] = st[1:] % NS_PER_SEC
+        rows["sec"] = st[1:] // NS_PER_S
+        rows["nsec"] = st[1:] % NS_PER_S
         rows["len"] = len(fid)
         rows["fid"] = fid
         rows["pose"] = p[1:]

@@ -11,7 +11,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from eurocslam.geometry import F64
-from eurocslam.io.cdr import CDR_LE_HEADER, NS_PER_SEC
+from eurocslam.io.cdr import CDR_LE_HEADER
+from eurocslam.timebase import NS_PER_S
 
 
 def _header_fields(frame_id: str, start: int) -> tuple[list[tuple[str, str]], int]:
@@ -37,8 +38,8 @@ def _split(rows: np.ndarray) -> list[bytes]:
 
 def _fill_header(rows: np.ndarray, t_ns: NDArray[np.int64], frame_id: str) -> None:
     rows["encap"] = CDR_LE_HEADER
-    rows["sec"] = t_ns // NS_PER_SEC
-    rows["nsec"] = t_ns % NS_PER_SEC
+    rows["sec"] = t_ns // NS_PER_S
+    rows["nsec"] = t_ns % NS_PER_S
     rows["flen"] = len(frame_id.encode()) + 1
     rows["fid"] = frame_id.encode()
 

@@ -20,6 +20,7 @@ from eurocslam.frontend.features import OrbExtractor
 from eurocslam.frontend.stereo import StereoRectifier
 from eurocslam.geometry import F64
 from eurocslam.synth import Scene, SynthSpec
+from eurocslam.timebase import ns_to_s
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,7 @@ def views(spec: SynthSpec, step_s: float, config: FrontendConfig | None = None) 
     g = rect.geometry
     orb = OrbExtractor(cfg, g.width, g.height)
     t = scene.cam_t_ns
-    stride = max(1, round(step_s / max(float((t[1] - t[0]) * 1e-9), 1e-9)))
+    stride = max(1, round(step_s / max(float(ns_to_s(t[1] - t[0])), 1e-9)))
     for k in range(0, t.size, stride):
         img, _ = scene.image(k, 0)
         feats = orb.extract(rect.rectify_left(img))

@@ -30,6 +30,7 @@ from eurocslam.errors import DatasetError, EurocSlamError
 from eurocslam.geometry import F64, quat_wxyz_to_rot
 from eurocslam.synth.kinematics import GRAVITY, integrate_gyro
 from eurocslam.synth.spline import so3_log_batch
+from eurocslam.timebase import ns_to_s
 
 WINDOWS_S = (0.05, 0.2, 1.0, 5.0)
 MIN_COVERAGE = 0.95  # share of the IMU stamps the ground truth must have a row at
@@ -57,7 +58,7 @@ def imu_mismatch(
     """The measure on samples: IMU (t_ns, gyro, accel), constant biases bg, ba (3,), ground
     truth R_world_body (N, 3, 3) and world velocity v (N, 3) at the same stamps. A window
     longer than the samples gives nan."""
-    dt = np.diff(t_ns).astype(np.float64) * 1e-9
+    dt = ns_to_s(np.diff(t_ns).astype(np.float64))
     P = integrate_gyro(t_ns, gyro, bg)
     f = np.einsum("nij,nj->ni", R, accel - ba) + GRAVITY
     dv = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (f[1:] + f[:-1]) * dt[:, None], 0)])

@@ -50,6 +50,7 @@ from eurocslam.errors import DatasetError
 from eurocslam.geometry import F64, rotation_between
 from eurocslam.synth.kinematics import integrate_gyro, midpoint_rates
 from eurocslam.synth.spline import so3_exp_batch, so3_log_batch
+from eurocslam.timebase import NS_PER_S, ns_to_s
 
 TAU_ROT_S = 10.0
 TAU_POS_S = 0.3
@@ -164,11 +165,11 @@ def _check_coverage(t_ns: np.ndarray, gt_t_ns: np.ndarray, gt_first: int) -> Non
     """The ground-truth poses within the IMU's span (at least 2) cover it: no gap longer than
     MAX_GT_GAP_S, no IMU rows more than one (median) ground-truth interval beyond them."""
     step = np.diff(gt_t_ns)
-    if np.any(step > MAX_GT_GAP_S * 1e9):
-        i = int(np.flatnonzero(step > MAX_GT_GAP_S * 1e9)[0])
+    if np.any(step > MAX_GT_GAP_S * NS_PER_S):
+        i = int(np.flatnonzero(step > MAX_GT_GAP_S * NS_PER_S)[0])
         raise DatasetError(
-            f"gap of {step[i] * 1e-9:.2f} s in the ground truth at "
-            f"{(gt_t_ns[i] - gt_first) * 1e-9:.2f} s after its first pose, within the IMU rows "
+            f"gap of {ns_to_s(step[i]):.2f} s in the ground truth at "
+            f"{ns_to_s(gt_t_ns[i] - gt_first):.2f} s after its first pose, within the IMU rows "
             f"(the fusion bridges at most {MAX_GT_GAP_S:g} s)"
         )
     interval = float(np.median(step))
@@ -176,8 +177,8 @@ def _check_coverage(t_ns: np.ndarray, gt_t_ns: np.ndarray, gt_first: int) -> Non
     if max(lead, trail) > interval:
         side, by = ("before", lead) if lead >= trail else ("after", trail)
         raise DatasetError(
-            f"the IMU rows run {by * 1e-9:.3f} s {side} the ground truth's poses (more than "
-            f"one ground-truth interval, {interval * 1e-9:.3f} s): crop them to its span"
+            f"the IMU rows run {ns_to_s(by):.3f} s {side} the ground truth's poses (more than "
+            f"one ground-truth interval, {ns_to_s(interval):.3f} s): crop them to its span"
         )
 
 
@@ -209,8 +210,8 @@ def fuse_imu_groundtruth(
     gt_first = int(gt_t_ns[0])
     gt_t_ns, gt_R, gt_p = gt_t_ns[inside], gt_R[inside], gt_p[inside]
     _check_coverage(t_ns, gt_t_ns, gt_first)
-    h = np.diff(t_ns).astype(np.float64) * 1e-9
-    dt_gt = float(np.median(np.diff(gt_t_ns))) * 1e-9
+    h = ns_to_s(np.diff(t_ns).astype(np.float64))
+    dt_gt = ns_to_s(float(np.median(np.diff(gt_t_ns))))
     k, u = _locate(t_ns, gt_t_ns)
 
     # ---- rotation ----------------------------------------------------------------------------

@@ -24,6 +24,7 @@ from eurocslam.errors import DatasetError
 from eurocslam.geometry import F64
 from eurocslam.synth.kinematics import GRAVITY
 from eurocslam.synth.spline import SplineTrajectory
+from eurocslam.timebase import ns_to_s
 
 # spread of the initial biases (EuRoC's own are ~0.02-0.08 rad/s and ~0.02-0.14 m/s^2)
 INITIAL_GYRO_BIAS_SIGMA = 0.02
@@ -64,7 +65,7 @@ def simulate_imu(
             "imu0/sensor.yaml: T_BS must be the identity for synthesis (the ground-truth body "
             "frame is the IMU frame, as on EuRoC)"
         )
-    t_s = (t_ns - t0_ns).astype(np.float64) * 1e-9
+    t_s = ns_to_s((t_ns - t0_ns).astype(np.float64))
     gyro, accel = ideal_imu(spline, t_s)
     n = t_ns.shape[0]
     rng = np.random.default_rng([seed, 0x1A0])

@@ -7,6 +7,7 @@ import numpy as np
 
 from eurocslam.geometry import F64
 from eurocslam.synth.spline import so3_exp_batch
+from eurocslam.timebase import ns_to_s
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
 
@@ -21,7 +22,7 @@ def midpoint_rates(gyro: F64, bg: F64) -> F64:
 def integrate_gyro(t_ns: np.ndarray, gyro: F64, bg: F64) -> F64:
     """The gyro (minus bias bg, (N, 3) or (3,)) integrated with the midpoint rule from the
     identity at t_ns[0]: R(t_k) (N, 3, 3), body at t_k into body at t_0, re-orthonormalised."""
-    h = np.diff(t_ns).astype(np.float64) * 1e-9
+    h = ns_to_s(np.diff(t_ns).astype(np.float64))
     steps = so3_exp_batch(midpoint_rates(gyro, bg) * h[:, None])
     P = np.empty((t_ns.size, 3, 3))
     P[0] = np.eye(3)

@@ -33,6 +33,7 @@ from eurocslam.synth.trajectory import (
     read_groundtruth_file,
 )
 from eurocslam.synth.world import World, build_world
+from eurocslam.timebase import NS_PER_S, ns_to_s, s_to_ns
 
 # bump whenever the same spec would give different files (caches compare it)
 GENERATOR_REVISION = 5
@@ -110,13 +111,13 @@ class Scene:
                 gt, start_s=spec.start_s, end_s=end, knot_dt=spec.knot_dt_s, imu=real_rows
             )
             floor_z = None
-        t_lo = motion.t0_ns + round(motion.t_start_s * 1e9)
-        t_hi = motion.t0_ns + int(np.floor(motion.t_end_s * 1e9))
+        t_lo = motion.t0_ns + s_to_ns(motion.t_start_s)
+        t_hi = motion.t0_ns + int(np.floor(motion.t_end_s * NS_PER_S))
         if spec.imu is not None:
             t_imu, g, a = read_real_imu(Path(spec.imu), t_lo, t_hi)
             imu = real_imu_stream(t_imu, g, a, motion.bias_source)
         else:
-            period = round(1e9 / imu_rate)
+            period = round(NS_PER_S / imu_rate)
             n = (t_hi - t_lo) // period + 1
             t_imu = t_lo + period * np.arange(n, dtype=np.int64)
             imu = simulate_imu(
@@ -134,14 +135,14 @@ class Scene:
         models = (camera_model(rig.cam0), camera_model(rig.cam1))
         if spec.world_from is not None:
             world, shared = build_shared_world(spec.world_from, spec.seed, marker=spec.marker)
-            st = motion.spline.evaluate((cam_t - motion.t0_ns) * 1e-9)
+            st = motion.spline.evaluate(ns_to_s(cam_t - motion.t0_ns))
             centres = np.vstack(
                 [st.p + st.R @ cam.T_body_cam[:3, 3] for cam in (rig.cam0, rig.cam1)]
             )
-            t_rel = np.tile((cam_t - gt.t_ns[0]) * 1e-9, 2)
+            t_rel = np.tile(ns_to_s(cam_t - gt.t_ns[0]), 2)
             check_flight_inside(world, shared, centres, t_rel, str(spec.trajectory))
             return cls(spec, rig, motion, world, models, cam_t, imu, shared=shared)
-        path = motion.spline.positions((cam_t - motion.t0_ns) * 1e-9)
+        path = motion.spline.positions(ns_to_s(cam_t - motion.t0_ns))
         if spec.trajectory is not None:
             # the world encloses the whole recorded flight, so every crop of a sequence flies
             # through the same room
@@ -153,7 +154,7 @@ class Scene:
 
     # ---- rendering ------------------------------------------------------------------------
     def t_s(self, t_ns: int | np.ndarray) -> F64:
-        return (np.asarray(t_ns, dtype=np.int64) - self.motion.t0_ns).astype(np.float64) * 1e-9
+        return ns_to_s((np.asarray(t_ns, dtype=np.int64) - self.motion.t0_ns).astype(np.float64))
 
     def T_world_body(self, t_s: float) -> F64:
         st = self.motion.spline.evaluate(np.array([t_s]))
@@ -372,7 +373,7 @@ def _summary(scene: Scene, st: Any, render_wall: float, cpu: float, workers: int
         "imu": "real rows" if scene.imu.real else "simulated",
         "t_first_ns": int(scene.cam_t_ns[0]),
         "t_last_ns": int(scene.cam_t_ns[-1]),
-        "duration_s": float((scene.cam_t_ns[-1] - scene.cam_t_ns[0]) * 1e-9),
+        "duration_s": float(ns_to_s(scene.cam_t_ns[-1] - scene.cam_t_ns[0])),
         "path_length_m": float(np.sum(np.linalg.norm(np.diff(st.p, axis=0), axis=1))),
         "max_speed_mps": float(speed.max()),
         "max_rate_radps": float(rate.max()),

@@ -23,6 +23,7 @@ from eurocslam.geometry import F64, quat_wxyz_to_rot, rot_to_quat_wxyz
 from eurocslam.synth.fusion import fuse_imu_groundtruth
 from eurocslam.synth.kinematics import GRAVITY
 from eurocslam.synth.spline import SplineTrajectory, fit_spline
+from eurocslam.timebase import ns_to_s
 
 BUILTIN_T0_NS = 1_400_000_000_000_000_000  # a realistic epoch (2014-05-13), like EuRoC's
 
@@ -178,7 +179,7 @@ def motion_from_groundtruth(
     `knot_dt` and `smooth_sigma_s` are then unused."""
     t_ns = gt.t_ns
     t_first = int(t_ns[0])
-    rel = (t_ns - t_first).astype(np.float64) * 1e-9
+    rel = ns_to_s((t_ns - t_first).astype(np.float64))
     total = float(rel[-1])
     a = 0.0 if start_s is None else float(start_s)
     b = total if end_s is None else min(float(end_s), total)
@@ -200,7 +201,7 @@ def motion_from_groundtruth(
     # spline time 0 = the first pose at or after the crop start, on the file's own clock
     i0 = int(np.searchsorted(rel, a - 1e-9))
     t0_ns = int(t_ns[i0])
-    ts = (t_ns[sel] - t0_ns).astype(np.float64) * 1e-9
+    ts = ns_to_s((t_ns[sel] - t0_ns).astype(np.float64))
     world_R = None
     p_in, q_in = gt.p[sel], gt.q_wxyz[sel]
     if imu is None:
@@ -209,7 +210,7 @@ def motion_from_groundtruth(
         spline, world_R, const_bias = _imu_spline(gt, sel, t0_ns, imu)
         p_in = p_in @ world_R.T
         q_in = rot_to_quat_wxyz(world_R @ quat_wxyz_to_rot(q_in))
-    t_end = min(b - (t0_ns - t_first) * 1e-9, spline.t_end)
+    t_end = min(b - ns_to_s(t0_ns - t_first), spline.t_end)
     # residuals against the input inside the crop
     m = (ts >= 0) & (ts <= t_end)
     st = spline.evaluate(ts[m])
@@ -261,9 +262,9 @@ def _imu_spline(
         bg, ba = gt.bg.mean(axis=0), gt.ba.mean(axis=0)
     else:
         # no bias columns: a constant gyro bias against the ground truth's rotation rate
-        ts = (gt.t_ns - gt.t_ns[0]).astype(np.float64) * 1e-9
+        ts = ns_to_s((gt.t_ns - gt.t_ns[0]).astype(np.float64))
         ref = fit_spline(ts, gt.p, gt.q_wxyz, knot_dt=0.1, smooth_sigma_s=0.03)
-        w = ref.evaluate((t_imu - gt.t_ns[0]).astype(np.float64) * 1e-9).w_body
+        w = ref.evaluate(ns_to_s((t_imu - gt.t_ns[0]).astype(np.float64))).w_body
         bg, ba = np.mean(gyro - w, axis=0), np.zeros(3)
     bg_n = np.broadcast_to(bg, gyro.shape)
     ba_n = np.broadcast_to(ba, accel.shape)
@@ -272,7 +273,7 @@ def _imu_spline(
     except DatasetError as e:
         raise DatasetError(f"{gt.path} with the given IMU rows: {e}") from None
     keep = (t_imu >= lo) & (t_imu <= hi)
-    t = (t_imu[keep] - t0_ns).astype(np.float64) * 1e-9
+    t = ns_to_s((t_imu[keep] - t0_ns).astype(np.float64))
     q = rot_to_quat_wxyz(fused.R[keep])
     period = float(np.median(np.diff(t)))
     spline = fit_spline(t, fused.p[keep], q, knot_dt=period, grid_dt=period)

@@ -36,7 +36,7 @@ from eurocslam.dataset.doctor.report import (
     StreamStats,
 )
 from eurocslam.errors import EurocSlamError
-from eurocslam.timebase import could_be_seconds, magnitude, unit_hint, unit_outliers
+from eurocslam.timebase import NS_PER_S, could_be_seconds, magnitude, unit_hint, unit_outliers
 
 GAP_PERIODS = 1.5  # a step longer than this many sample periods is a gap
 
@@ -204,8 +204,8 @@ class _Doctor:
         if u.size > 1:
             du = np.diff(u)
             med = float(np.median(du))
-            measured = 1e9 / med if med > 0 else None
-            period = 1e9 / yaml_rate if yaml_rate else med
+            measured = NS_PER_S / med if med > 0 else None
+            period = NS_PER_S / yaml_rate if yaml_rate else med
             if yaml_rate and med > 0:
                 ratio = med / period
                 if ratio < 0.01 or ratio > 100:
@@ -221,7 +221,7 @@ class _Doctor:
                     self.add(
                         WARNING,
                         "timestamps",
-                        f"measured rate {1e9 / med:.2f} Hz differs from sensor.yaml rate_hz "
+                        f"measured rate {NS_PER_S / med:.2f} Hz differs from sensor.yaml rate_hz "
                         f"{yaml_rate:g}",
                         path,
                         key="rate_hz",
@@ -314,7 +314,7 @@ class _Doctor:
         imu = self.csvs.get("imu0")
         if imu is not None and imu.t.size:
             i0, i1 = int(imu.t.min()), int(imu.t.max())
-            tol = int(1e9 / self.rates["imu0"]) if self.rates.get("imu0") else 0
+            tol = int(NS_PER_S / self.rates["imu0"]) if self.rates.get("imu0") else 0
             if i1 < a or i0 > b:
                 self.add(
                     ERROR,
@@ -326,9 +326,9 @@ class _Doctor:
                 cover = (min(i1, b) - max(i0, a)) / max(b - a, 1)
                 parts = []
                 if i0 > a + tol:
-                    parts.append(f"starts {(i0 - a) / 1e9:.3f} s after the first stereo frame")
+                    parts.append(f"starts {(i0 - a) / NS_PER_S:.3f} s after the first stereo frame")
                 if i1 < b - tol:
-                    parts.append(f"ends {(b - i1) / 1e9:.3f} s before the last stereo frame")
+                    parts.append(f"ends {(b - i1) / NS_PER_S:.3f} s before the last stereo frame")
                 self.add(
                     WARNING,
                     "overlap",

@@ -23,6 +23,7 @@ from eurocslam.dataset.doctor.report import (
 )
 from eurocslam.dataset.types import I64
 from eurocslam.errors import EurocSlamError
+from eurocslam.timebase import NS_PER_S
 
 
 def _periods(t: I64) -> I64:
@@ -54,7 +55,7 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
             add(level, f"{role}: no topic (looked for {', '.join(seq.topic_map.candidates(role))})")
             continue
         lt = st.log_array()
-        span = float(lt.max() - lt.min()) / 1e9 if st.count else 0.0
+        span = float(lt.max() - lt.min()) / NS_PER_S if st.count else 0.0
         add(INFO, f"{role}: {st.topic} [{st.msgtype}] {st.count} messages over {span:.1f} s")
         if st.count == 0:
             required = role in REQUIRED_ROLES or role == "imu"  # an empty IMU topic is refused
@@ -88,17 +89,17 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
         dt = _periods(t)
         if dt.size == 0:
             continue
-        med = float(np.median(dt)) / 1e9
+        med = float(np.median(dt)) / NS_PER_S
         measured = 1.0 / med if med > 0 else float("inf")
         if rate > 0 and abs(measured - rate) / rate > 0.1:
             add(WARNING, f"{st.topic}: rate {measured:.1f} Hz, calibration says {rate:g} Hz")
         else:
             add(INFO, f"{st.topic}: rate {measured:.1f} Hz (calibration {rate:g} Hz)")
         period = 1.0 / rate if rate > 0 else med
-        gaps = dt[dt > 2.5 * period * 1e9]
+        gaps = dt[dt > 2.5 * period * NS_PER_S]
         if gaps.size:
             add(WARNING, f"{st.topic}: {gaps.size} gaps longer than 2.5 periods "
-                f"(longest {float(gaps.max()) / 1e9:.3f} s)")  # fmt: skip
+                f"(longest {float(gaps.max()) / NS_PER_S:.3f} s)")  # fmt: skip
     # stereo pairing
     n_pairs = sum(1 for e in seq.frame_index if e.has_left and e.has_right)
     only0 = sum(1 for e in seq.frame_index if e.has_left and not e.has_right)
@@ -118,8 +119,9 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
         if i1 < f0 or i0 > f1:
             add(ERROR, "the IMU and the cameras do not overlap in time")
         elif i0 > f0 or i1 < f1:
-            add(WARNING, f"the IMU covers the cameras only partly (starts {(i0 - f0) / 1e9:+.3f} "
-                f"s, ends {(i1 - f1) / 1e9:+.3f} s from the first/last frame)")  # fmt: skip
+            add(WARNING, "the IMU covers the cameras only partly (starts "
+                f"{(i0 - f0) / NS_PER_S:+.3f} s, ends {(i1 - f1) / NS_PER_S:+.3f} s from the "
+                "first/last frame)")  # fmt: skip
         gt = seq.groundtruth
         if gt is not None and len(gt):
             g0, g1 = int(gt.t_ns[0]), int(gt.t_ns[-1])

@@ -45,6 +45,7 @@ from eurocslam.dataset.kitti_files import (
 )
 from eurocslam.dataset.types import I64
 from eurocslam.errors import EurocSlamError
+from eurocslam.timebase import NS_PER_S
 
 GAP_PERIODS = 1.5  # a step longer than this many median steps is a gap
 _LOCATED = re.compile(r"^:(\d+)(?: \(([^)]*)\))?: (.*)$", re.S)
@@ -142,7 +143,7 @@ class _KittiDoctor:
         if t.size > 1:
             d = np.diff(t)
             med = float(np.median(d))
-            rate = 1e9 / med
+            rate = NS_PER_S / med
             gaps = np.flatnonzero(d > GAP_PERIODS * med)
             if gaps.size:
                 big = int(gaps[np.argmax(d[gaps])])
@@ -240,7 +241,7 @@ class _KittiDoctor:
         if self.calib is None or self.size is None:
             return
         rate = (
-            1e9 / float(np.median(np.diff(self.t_ns)))
+            NS_PER_S / float(np.median(np.diff(self.t_ns)))
             if self.t_ns is not None and self.t_ns.size > 1
             else 10.0
         )

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from eurocslam.errors import EurocSlamError
+from eurocslam.timebase import NS_PER_S
 
 ERROR = "error"
 WARNING = "warning"
@@ -74,7 +75,7 @@ class StreamStats:
     def span_s(self) -> float:
         if self.t_first_ns is None or self.t_last_ns is None:
             return 0.0
-        return (self.t_last_ns - self.t_first_ns) / 1e9
+        return (self.t_last_ns - self.t_first_ns) / NS_PER_S
 
 
 @dataclass(frozen=True)
