@@ -48,6 +48,18 @@ def test_resolved_config_round_trips(tmp_path: Path) -> None:
         ({"frontend": {"rectify_alpha": 2.0}}, "frontend.rectify_alpha"),
         ({"frontend": {"prefetch": 1}}, "frontend.prefetch"),
         ({"frontend": [1, 2]}, "frontend"),
+        (
+            {"frontend": {"min_fast_threshold": 30}},
+            "frontend.min_fast_threshold' value 30 out of range",
+        ),
+        (
+            {"backend": {"lag_s": float("nan")}},
+            "backend.lag_s' value nan out of range",
+        ),
+        (
+            {"places": {"loop_agree_m": 0}},
+            "places.loop_agree_m' value 0.0 out of range",
+        ),
     ],
 )
 def test_bad_keys_and_values_name_the_key(tmp_path: Path, data: dict, needle: str) -> None:
@@ -133,3 +145,17 @@ def test_fast_preset_is_the_defaults_with_track_every_2() -> None:
     assert resolve_mode(fast, has_imu=True).mode == STEREO_INERTIAL
     with pytest.raises(ConfigError, match="track_every"):
         resolve_mode(fast, has_imu=False)
+
+
+def test_a_limit_names_its_rule() -> None:
+    """One line: the key, the value, and the bound it breaks (a number or another key)."""
+    with pytest.raises(ConfigError) as e:
+        config_from_dict({"frontend": {"min_fast_threshold": 30}})
+    assert str(e.value) == (
+        "<config>: key 'frontend.min_fast_threshold' value 30 out of range "
+        "(must be <= fast_threshold)"
+    )
+    with pytest.raises(
+        ConfigError, match=r"'backend\.lag_s' value 0\.0 out of range \(must be > 0"
+    ):
+        config_from_dict({"backend": {"lag_s": 0}})

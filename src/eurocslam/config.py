@@ -2,8 +2,10 @@
 
 Every tunable of `eurocslam run` lives here with its default; `configs/euroc.yaml` lists them all
 with comments. Loading is strict: an unknown key, a wrong type or an out-of-range value raises
-`ConfigError` naming the file and the dotted key. The resolved configuration (defaults merged
-with the file) is written next to the outputs (`OUT/config.yaml`), so a run can be reproduced.
+`ConfigError` naming the file and the dotted key. A field's range stands beside it (`limited`:
+without one, a number must be >= 0); one function checks them (`eurocslam.limits`). The
+resolved configuration (defaults merged with the file) is written next to the outputs
+(`OUT/config.yaml`), so a run can be reproduced.
 
 Every section, the frontend's (`eurocslam.frontend.config.FrontendConfig`) included, goes through
 the one loader here, so a config is checked completely before a run touches anything on disk.
@@ -25,6 +27,7 @@ import yaml
 
 from eurocslam.errors import ConfigError
 from eurocslam.frontend.config import FrontendConfig
+from eurocslam.limits import check_limits, limited
 
 logger = logging.getLogger(__name__)
 
@@ -35,69 +38,78 @@ MODES = ("auto", STEREO_INERTIAL, VISUAL_ONLY)
 
 @dataclass(frozen=True)
 class ImuConfig:
-    gravity: float = 9.81  # m/s^2, world z up
+    gravity: float = limited(9.81, gt=0)  # m/s^2, world z up
     # multipliers on the sensor.yaml noise densities (datasheet values are optimistic)
-    gyro_noise_scale: float = 1.0
-    accel_noise_scale: float = 1.0
+    gyro_noise_scale: float = limited(1.0, gt=0)
+    accel_noise_scale: float = limited(1.0, gt=0)
     # multipliers on the sensor.yaml bias random walks (1: the datasheet's, as ORB-SLAM3 uses
     # on EuRoC); a real IMU that disagrees more is caught by the final batch's IMU check
     # (benchmarks/RESULTS.md, "The IMU's bias random walk")
-    gyro_bias_walk_scale: float = 1.0
-    accel_bias_walk_scale: float = 1.0
-    integration_sigma: float = 1e-4  # continuous-time position integration noise
-    max_gap_s: float = 0.05  # longer gaps between IMU samples count as an IMU dropout
+    gyro_bias_walk_scale: float = limited(1.0, gt=0)
+    accel_bias_walk_scale: float = limited(1.0, gt=0)
+    integration_sigma: float = limited(1e-4, gt=0)  # continuous-time position integration noise
+    # longer gaps between IMU samples count as an IMU dropout
+    max_gap_s: float = limited(0.05, gt=0)
 
 
 @dataclass(frozen=True)
 class InitConfig:
     mode: str = "auto"  # auto | static | dynamic
-    static_window_s: float = 0.6  # IMU window centred on the first frame to test for stillness
+    # IMU window centred on the first frame to test for stillness
+    static_window_s: float = limited(0.6, gt=0)
     static_gyro_std_max: float = 0.02  # rad/s: above this the platform is moving
     static_accel_std_max: float = 0.15  # m/s^2
     static_accel_norm_tol: float = 0.4  # | |a| - g | below this while still
-    dynamic_window_s: float = 1.5  # stereo VO span aligned with the IMU for a moving start
+    # stereo VO span aligned with the IMU for a moving start
+    dynamic_window_s: float = limited(1.5, gt=0)
     # visual-only: the world's first attitude (nothing measures gravity): camera_level (cam0
     # level, looking along world x: z up if the camera is held level) or body (the first body
     # frame)
     visual_world: str = "camera_level"
     dynamic_min_keyframes: int = 5
     # priors at initialisation (stddev)
-    prior_yaw_sigma: float = 0.01  # rad: the first yaw is the gauge (nothing observes it)
-    prior_tilt_sigma_static: float = 0.01  # rad: roll/pitch from the still IMU's mean
-    prior_tilt_sigma_dynamic: float = 0.01  # rad: roll/pitch from the VO/IMU alignment
-    prior_pos_sigma: float = 0.001  # m
-    prior_vel_sigma_static: float = 0.01  # m/s
-    prior_vel_sigma_dynamic: float = 0.1  # m/s
-    prior_gyro_bias_sigma: float = 0.005  # rad/s
-    prior_accel_bias_sigma: float = 0.1  # m/s^2
+    # rad: the first yaw is the gauge (nothing observes it)
+    prior_yaw_sigma: float = limited(0.01, gt=0)
+    # rad: roll/pitch from the still IMU's mean
+    prior_tilt_sigma_static: float = limited(0.01, gt=0)
+    # rad: roll/pitch from the VO/IMU alignment
+    prior_tilt_sigma_dynamic: float = limited(0.01, gt=0)
+    prior_pos_sigma: float = limited(0.001, gt=0)  # m
+    prior_vel_sigma_static: float = limited(0.01, gt=0)  # m/s
+    prior_vel_sigma_dynamic: float = limited(0.1, gt=0)  # m/s
+    prior_gyro_bias_sigma: float = limited(0.005, gt=0)  # rad/s
+    prior_accel_bias_sigma: float = limited(0.1, gt=0)  # m/s^2
 
 
 @dataclass(frozen=True)
 class BackendConfig:
     smoother: str = "fixed_lag"  # fixed_lag | isam2 (isam2 keeps every state: slower, no marginals)
-    lag_s: float = 3.0  # fixed-lag smoother horizon
+    lag_s: float = limited(3.0, gt=0)  # fixed-lag smoother horizon
     relinearize_threshold: float = 0.01
-    relinearize_skip: int = 1
-    stereo_sigma_px: float = 1.0
-    huber_k: float = 1.345  # Huber threshold in units of sigma
+    relinearize_skip: int = limited(1, gt=0)
+    stereo_sigma_px: float = limited(1.0, gt=0)
+    huber_k: float = limited(1.345, gt=0)  # Huber threshold in units of sigma
     # stereo observations with less disparity are left out (1 px: 48 m on EuRoC, 386 m on
     # KITTI; a far point still constrains the rotation through its stereo error in pixels)
     min_disparity_px: float = 1.0
     min_obs_without_imu: int = 10  # a keyframe without an IMU factor needs this many points
     # a landmark re-found after the smoother let it go (map reuse) is anchored at its last
     # smoothed position with this sigma (m; 0: not), so the online estimate returns to the map
-    # it revisits instead of drifting away from it. Full-length MH_01 replica: online ATE
-    # 20.5 -> 7.9 mm with 0.02, final 3.0 -> 2.5 mm
+    # it revisits instead of drifting away from it (benchmarks/RESULTS.md)
     refound_prior_sigma_m: float = 0.02
     # a pose found by place recognition (relocalization prior, loop edge): sigmas (rad, m)
-    place_rot_sigma: float = 0.01
-    place_pos_sigma: float = 0.02
-    vo_bridge_rot_sigma: float = 0.02  # visual-only: a keyframe with too few of them is
-    vo_bridge_pos_sigma: float = 0.05  # tied to the last one by the frontend's motion (rad, m)
-    max_landmarks_per_keyframe: int = 100
-    max_landmarks_per_keyframe_no_imu: int = 150  # visual-only: vision alone holds the keyframes
+    place_rot_sigma: float = limited(0.01, gt=0)
+    place_pos_sigma: float = limited(0.02, gt=0)
+    # visual-only: a keyframe with too few mapped landmarks is tied to the last one by the
+    # frontend's motion with these sigmas (rad, m)
+    vo_bridge_rot_sigma: float = limited(0.02, gt=0)
+    vo_bridge_pos_sigma: float = limited(0.05, gt=0)
+    max_landmarks_per_keyframe: int = limited(100, gt=0)
+    # visual-only: vision alone holds the keyframes
+    max_landmarks_per_keyframe_no_imu: int = limited(150, gt=0)
     min_keyframe_interval_s: float = 0.2  # frontend keyframes closer than this are skipped
-    max_keyframe_interval_s: float = 0.5  # force a keyframe after this long (bounds IMU spans)
+    # force a keyframe after this long (bounds IMU spans)
+    max_keyframe_interval_s: float = limited(0.5, gt=0)
     correct_landmarks: bool = True  # push smoothed landmark positions back to the frontend
     correct_whole_map: bool = True  # move the rest of the frontend map with the keyframe
     final_batch: bool = True  # one full Levenberg-Marquardt over each segment at the end
@@ -109,7 +121,7 @@ class BackendConfig:
     final_max_landmarks_per_keyframe: int = 250
     # final batch: when the IMU factors' chi-square per redundancy exceeds the stereo factors'
     # by more than this ratio, the accelerometer's covariances are scaled by it and the batch
-    # goes on (variance-component rounds; 0: never). Simulated IMUs: 0.4-0.8; V1_01's real: 8-13
+    # goes on (variance-component rounds; 0: never)
     final_imu_reweight_above: float = 2.0
 
 
@@ -117,16 +129,15 @@ class BackendConfig:
 class HealthConfig:
     # m/s, faster than the platform can move: stereo-inertial, a smoothed velocity above it is
     # a divergence; visual-only, a tracked pose this far (per second) from the last is wrong
-    max_speed: float = 50.0
-    max_gyro_bias: float = 0.3  # rad/s
-    max_accel_bias: float = 1.5  # m/s^2
-    max_lost_s: float = 2.0  # IMU-only bridging longer than this resets
+    max_speed: float = limited(50.0, gt=0)
+    max_gyro_bias: float = limited(0.3, gt=0)  # rad/s
+    max_accel_bias: float = limited(1.5, gt=0)  # m/s^2
+    max_lost_s: float = limited(2.0, gt=0)  # IMU-only bridging longer than this resets
     max_lost_s_no_imu: float = 0.3  # no IMU and no tracking: reset sooner
     # stereo-inertial: the tracked pose may be this far from the IMU's prediction
-    max_prediction_error_m: float = 1.0
+    max_prediction_error_m: float = limited(1.0, gt=0)
     # after a loss past the prediction, the tracker's own search (no prior) must find this many
-    # inliers (ORB-SLAM's relocalization bar); on a rendered blackout a 1.5 m wrong pose had 41
-    # of 605 landmarks in view, the right one 160 of 596
+    # inliers (ORB-SLAM's relocalization bar)
     recover_min_inliers: int = 50
 
 
@@ -136,14 +147,14 @@ class PlacesConfig:
 
     enabled: bool = True
     vocabulary: str = ""  # a vocabulary .npz (places.train); "": the one shipped
-    candidates: int = 5  # best-scored keyframes verified per query
+    candidates: int = limited(5, gt=0)  # best-scored keyframes verified per query
     min_score: float = 0.01  # appearance score below which a keyframe is not a candidate
     # verification: descriptor matches (Hamming, ratio test), PnP-RANSAC, refinement
     max_hamming: int = 60
-    ratio: float = 0.8
-    min_inliers: int = 40
-    pnp_reprojection_px: float = 3.0
-    pnp_iterations: int = 300
+    ratio: float = limited(0.8, gt=0)
+    min_inliers: int = limited(40, gt=0)
+    pnp_reprojection_px: float = limited(3.0, gt=0)
+    pnp_iterations: int = limited(300, gt=0)
     # a candidate keyframe's own stereo points (where the map has no landmark) take part only
     # when closer than this many baselines (ORB-SLAM's close points): a far point's depth rests
     # on a few pixels of disparity, and a pose fitted to it is off by up to degrees (0: all)
@@ -153,26 +164,25 @@ class PlacesConfig:
     # agree within the tolerances; a correction smaller than the thresholds is left to the
     # projection re-finding of map reuse
     loop_min_age_s: float = 10.0
-    loop_consistency: int = 2
-    loop_agree_m: float = 0.05
-    loop_agree_deg: float = 1.0
+    loop_consistency: int = limited(2, gt=0)
+    loop_agree_m: float = limited(0.05, gt=0)
+    loop_agree_deg: float = limited(1.0, gt=0)
     loop_min_correction_m: float = 0.1
     loop_min_correction_deg: float = 1.0
     # the gate (pipeline/places.py `loop_gate`): a correction is applied only when the drift it
     # measures is one the estimator's uncertainty allows, given the match's own (chi-square, 6
     # DoF; 16.81: 99 %); refused loops are reported. The estimator's pose covariance is sampled
     # at a keyframe every `loop_covariance_every_s` (a marginal covariance costs about a fifth
-    # of a smoother update: 2 s of the tracking thread per minute sampled every second) and at
-    # the query when a loop reaches the gate; a candidate between samples takes the next one's
-    # (the larger: the stricter gate)
-    loop_gate_chi2: float = 16.81
-    loop_covariance_every_s: float = 5.0
+    # of a smoother update) and at the query when a loop reaches the gate; a candidate between
+    # samples takes the next one's (the larger: the stricter gate)
+    loop_gate_chi2: float = limited(16.81, gt=0)
+    loop_covariance_every_s: float = limited(5.0, gt=0)
     # act on such a loop online: move the estimate onto the old map (the smoother restarts from
     # the moved state, the tracker's map moves with it) and give the final batch the loop edge;
     # off: loops are recognised and reported, and closed by map reuse in the final batch
     correct_loops_online: bool = True
     # relocalization: lost frames query the database; lost this long without a place: reset
-    relocalize_max_s: float = 10.0
+    relocalize_max_s: float = limited(10.0, gt=0)
     # a new segment (after a reset) is merged into the frame of an earlier one it recognises
     merge: bool = True
 
@@ -258,78 +268,8 @@ def _section(cls: type, data: Any, prefix: str, origin: str) -> Any:
             raise ConfigError(f"{origin}: unknown key '{prefix}.{k}' (known: {', '.join(names)})")
     kw = {k: _coerce(v, hints[k], f"{prefix}.{k}", origin) for k, v in data.items()}
     obj = cls(**kw)
-    _check_ranges(obj, prefix, origin)
+    check_limits(obj, prefix, origin)
     return obj
-
-
-def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
-    for f in fields(obj):
-        v = getattr(obj, f.name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            continue
-        if v != v or v < 0:  # NaN or negative
-            raise ConfigError(f"{origin}: key '{prefix}.{f.name}' must be >= 0, got {v!r}")
-    if isinstance(obj, FrontendConfig):
-        obj.validate(origin)
-    positive = {
-        "imu": (
-            "gravity",
-            "gyro_noise_scale",
-            "accel_noise_scale",
-            "gyro_bias_walk_scale",
-            "accel_bias_walk_scale",
-            "integration_sigma",
-            "max_gap_s",
-        ),
-        "init": (
-            "static_window_s",
-            "dynamic_window_s",
-            "prior_yaw_sigma",
-            "prior_tilt_sigma_static",
-            "prior_tilt_sigma_dynamic",
-            "prior_pos_sigma",
-            "prior_vel_sigma_static",
-            "prior_vel_sigma_dynamic",
-            "prior_gyro_bias_sigma",
-            "prior_accel_bias_sigma",
-        ),
-        "backend": (
-            "lag_s",
-            "stereo_sigma_px",
-            "huber_k",
-            "max_keyframe_interval_s",
-            "relinearize_skip",
-            "max_landmarks_per_keyframe",
-            "max_landmarks_per_keyframe_no_imu",
-            "vo_bridge_rot_sigma",
-            "vo_bridge_pos_sigma",
-            "place_rot_sigma",
-            "place_pos_sigma",
-        ),
-        "places": (
-            "candidates",
-            "ratio",
-            "min_inliers",
-            "pnp_reprojection_px",
-            "pnp_iterations",
-            "loop_consistency",
-            "loop_agree_m",
-            "loop_agree_deg",
-            "loop_gate_chi2",
-            "loop_covariance_every_s",
-            "relocalize_max_s",
-        ),
-        "health": (
-            "max_speed",
-            "max_gyro_bias",
-            "max_accel_bias",
-            "max_lost_s",
-            "max_prediction_error_m",
-        ),
-    }
-    for name in positive.get(prefix, ()):
-        if getattr(obj, name) <= 0:
-            raise ConfigError(f"{origin}: key '{prefix}.{name}' must be > 0")
 
 
 def config_from_dict(data: Any, origin: str = "<config>") -> RunConfig:

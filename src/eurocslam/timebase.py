@@ -20,13 +20,10 @@ Seconds or nanoseconds? One rule, by magnitude:
   are a unit mix-up (seconds, milli- or microseconds among nanoseconds); the reference is the
   magnitude most streams agree with, the IMU's on a tie (`unit_outliers`).
 
-Where earlier copies of these rules disagreed, this module decides: a token such as
-`'1403636580838555648.5'` (a fraction, but far above `SECONDS_MAX`) is a malformed nanosecond
-stamp, not seconds; `'-inf'` or `'nan'` never look like seconds; the reader and the doctor take the
-same reference stream when they look for a unit mix-up (the reader used to compare everything with
-the IMU, blaming the cameras when the IMU alone was in seconds); the doctor's note "timestamps are
-small" uses `SECONDS_MAX` (it used 1e12, where a 15-minute recording with relative nanosecond
-stamps is already no longer possible in seconds).
+So a token such as `'1403636580838555648.5'` (a fraction, but far above `SECONDS_MAX`) is a
+malformed nanosecond stamp, not seconds; `'-inf'` or `'nan'` never look like seconds; the reader
+and the doctor take the same reference stream when they look for a unit mix-up, and the doctor's
+note "timestamps are small" uses `SECONDS_MAX`.
 """
 
 from __future__ import annotations

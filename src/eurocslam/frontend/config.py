@@ -1,7 +1,8 @@
 """Frontend / visual-odometry configuration (the `frontend:` section of `configs/euroc.yaml`).
 
 Loaded with the other sections by `eurocslam.config` (unknown keys and wrong types are errors
-there); `validate` checks the ranges and names the file and key.
+there). Each field's range stands beside it (`limited`); `validate` checks them all
+(`eurocslam.limits.check_limits`) and names the file and key.
 """
 
 from __future__ import annotations
@@ -9,50 +10,48 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
-from eurocslam.errors import ConfigError
+from eurocslam.limits import check_limits, limited
 
 
 @dataclass(frozen=True)
 class FrontendConfig:
     # ---- ORB features (features.py) ------------------------------------------------------
-    n_features: int = 1000  # keypoints kept per image after grid bucketing
-    grid_cols: int = 8  # bucketing grid over the image
-    grid_rows: int = 6
-    orb_scale_factor: float = 1.2  # pyramid scale between levels
-    # 8 levels as ORB-SLAM (scale range 3.6x): with 6, ORB was faster but visual-only drifted
-    # on the machine halls (full-length MH_04 replica 0.118 m instead of 0.066)
-    orb_levels: int = 8
-    # FAST threshold. Detection time grows with the number of raw corners (rendered replicas
-    # give ~30k at 10; ORB then takes 1.5x as long as at 20): 20 as in ORB-SLAM, and a second
-    # detection at `min_fast_threshold` when an image (dark, low texture) gives < n_features
-    fast_threshold: int = 20
-    min_fast_threshold: int = 7
+    n_features: int = limited(1000, ge=50)  # keypoints kept per image after grid bucketing
+    grid_cols: int = limited(8, ge=1)  # bucketing grid over the image
+    grid_rows: int = limited(6, ge=1)
+    orb_scale_factor: float = limited(1.2, gt=1.0, le=2.0)  # pyramid scale between levels
+    orb_levels: int = limited(8, ge=1, le=12)  # as ORB-SLAM (scale range 3.6x)
+    # FAST threshold (20 as in ORB-SLAM), and a second detection at `min_fast_threshold` when
+    # an image (dark, low texture) gives < n_features
+    fast_threshold: int = limited(20, ge=1, le=255)
+    min_fast_threshold: int = limited(7, ge=1, le="fast_threshold")
     orb_harris_score: bool = False  # rank corners by Harris (slower) instead of FAST score
-    # ORB detects factor * n_features before bucketing. 1.5 makes ORB ~10 % faster, but on the
-    # full-length replicas visual-only MH_05 drifted to 0.101 m (0.070 m with 2.5)
+    # ORB detects factor * n_features before bucketing
     orb_candidates_factor: float = 2.5
 
     # ---- stereo rectification and matching (stereo.py, matching.py) ----------------------
-    rectify_alpha: float = 0.0  # cv2.stereoRectify alpha: 0 = only valid pixels
+    # cv2.stereoRectify alpha: 0 = only valid pixels
+    rectify_alpha: float = limited(0.0, ge=0, le=1)
     # the disparity window, from the rig: from `stereo_min_disparity_px` (the farthest points a
     # stereo match can measure; 1 px: 48 m on EuRoC, 386 m on KITTI) up to the disparity of a
     # point `stereo_min_depth_baselines` baselines away (fx / that: 218 px on EuRoC)
-    stereo_min_disparity_px: float = 1.0
-    stereo_min_depth_baselines: float = 2.0
+    stereo_min_disparity_px: float = limited(1.0, gt=0)
+    stereo_min_depth_baselines: float = limited(2.0, gt=0)
     stereo_row_tolerance_px: float = 2.0  # |vL - vR| allowed, times the octave scale
     stereo_max_hamming: int = 80  # descriptor distance accepted for a stereo match
-    stereo_ratio: float = 0.9  # best / second-best descriptor distance (distinct candidates)
-    subpixel_half_window: int = 5  # SAD patch half size for sub-pixel disparity
-    subpixel_search_px: int = 5  # +- search range of the SAD refinement
+    # best / second-best descriptor distance (distinct candidates)
+    stereo_ratio: float = limited(0.9, gt=0, le=1)
+    subpixel_half_window: int = limited(5, ge=1)  # SAD patch half size for sub-pixel disparity
+    subpixel_search_px: int = limited(5, ge=1)  # +- search range of the SAD refinement
 
     # ---- temporal tracking (tracker.py) ---------------------------------------------------
     # projection search radius, as an angle (the prediction's error is angular): x fx gives
     # pixels (1.3 deg: 9.9 px on EuRoC's 436 px focal length, 16 px on KITTI's 719), times the
     # keypoint's octave scale
-    track_radius_deg: float = 1.3
+    track_radius_deg: float = limited(1.3, gt=0, lt=30)
     track_max_hamming: int = 80
-    track_ratio: float = 0.9
-    min_tracked: int = 20  # fewer pose inliers than this: LOST
+    track_ratio: float = limited(0.9, gt=0, le=1)
+    min_tracked: int = limited(20, ge=6)  # fewer pose inliers than this: LOST
     pnp_reprojection_px: float = 3.0  # solvePnPRansac inlier threshold
     pnp_iterations: int = 200
     pose_chi2_stereo: float = 7.815  # chi-square 95 % (3 dof) for stereo outliers, 1 px sigma
@@ -71,11 +70,9 @@ class FrontendConfig:
     # KITTI): beyond, a depth rests on a disparity of a few pixels, and the tenths of a pixel
     # of bias a real rig's rectification leaves (a render does not) make it tens of percent
     # wrong at 1 px; such far points start landmarks only to make up `min_new_landmarks`
-    # (closest first). 0: every stereo point alike. Visual-only runs, where scale comes from
-    # the stereo depths alone (real KITTI excerpt: Sim(3) ATE 0.17 -> 0.04 m; full-length
-    # replicas: better or equal on all 11); stereo-inertial runs take `far_depth_baselines_inertial`
-    # (the IMU measures scale; the far landmarks' re-finding closes loops: with 40, the
-    # replicas' final ATE was worse on 5 of 11, MH_05 4.1 -> 8.3 mm; RESULTS.md)
+    # (closest first). 0: every stereo point alike. Visual-only runs take it (scale comes from
+    # the stereo depths alone); stereo-inertial runs take `far_depth_baselines_inertial` (the
+    # IMU measures scale, and the far landmarks' re-finding closes loops)
     far_depth_baselines: float = 40.0
     far_depth_baselines_inertial: float = 0.0
     min_new_landmarks: int = 200
@@ -89,7 +86,8 @@ class FrontendConfig:
     reuse_map: bool = True
     archive_min_found: int = 3
     archive_max_landmarks: int = 100_000  # beyond: the least found are dropped
-    reuse_radius_deg: float = 0.8  # projection search radius (x fx, times the octave scale)
+    # projection search radius (x fx, times the octave scale)
+    reuse_radius_deg: float = limited(0.8, gt=0, lt=30)
     reuse_max_hamming: int = 50  # stricter than tracking: a wrong match is a wrong loop
     reuse_ratio: float = 0.8
 
@@ -113,10 +111,10 @@ class FrontendConfig:
     # extraction of the next frames (rectify, ORB, stereo matching) in worker processes while
     # the current one is tracked, decoding in a reader thread (frontend/workers.py)
     prefetch: bool = True
-    prefetch_workers: int = 2  # worker processes
+    prefetch_workers: int = limited(2, ge=1)  # worker processes
     # track one frame in N; the IMU gives the frames between their pose (stereo-inertial only).
     # 2 halves extraction and tracking (benchmarks/RESULTS.md, "Tracking every second frame")
-    track_every: int = 1
+    track_every: int = limited(1, ge=1)
 
     def for_mode(self, inertial: bool) -> FrontendConfig:
         """The tracker's configuration for a stereo-inertial or a visual-only run."""
@@ -125,31 +123,5 @@ class FrontendConfig:
         return dataclasses.replace(self, far_depth_baselines=self.far_depth_baselines_inertial)
 
     def validate(self, origin: str = "<config>") -> None:
-        checks = [
-            ("n_features", self.n_features >= 50),
-            ("grid_cols", self.grid_cols >= 1),
-            ("grid_rows", self.grid_rows >= 1),
-            ("orb_scale_factor", 1.0 < self.orb_scale_factor <= 2.0),
-            ("orb_levels", 1 <= self.orb_levels <= 12),
-            ("fast_threshold", 1 <= self.fast_threshold <= 255),
-            ("min_fast_threshold", 1 <= self.min_fast_threshold <= self.fast_threshold),
-            ("stereo_min_disparity_px", self.stereo_min_disparity_px > 0),
-            ("stereo_min_depth_baselines", self.stereo_min_depth_baselines > 0),
-            ("far_depth_baselines", self.far_depth_baselines >= 0),
-            ("min_new_landmarks", self.min_new_landmarks >= 0),
-            ("track_radius_deg", 0 < self.track_radius_deg < 30),
-            ("reuse_radius_deg", 0 < self.reuse_radius_deg < 30),
-            ("rectify_alpha", 0.0 <= self.rectify_alpha <= 1.0),
-            ("stereo_ratio", 0 < self.stereo_ratio <= 1),
-            ("track_ratio", 0 < self.track_ratio <= 1),
-            ("min_tracked", self.min_tracked >= 6),
-            ("subpixel_half_window", self.subpixel_half_window >= 1),
-            ("subpixel_search_px", self.subpixel_search_px >= 1),
-            ("prefetch_workers", self.prefetch_workers >= 1),
-            ("track_every", self.track_every >= 1),
-        ]
-        for key, ok in checks:
-            if not ok:
-                raise ConfigError(
-                    f"{origin}: key 'frontend.{key}' value {getattr(self, key)!r} out of range"
-                )
+        """Every value within its limits (`eurocslam.limits`)."""
+        check_limits(self, "frontend", origin)

@@ -174,7 +174,7 @@ class SlamPipeline:
     ) -> RunResult:
         # BLAS on this thread alone: its products are small (landmarks x 3, one pose's Jacobian)
         # and a second BLAS thread competes with the extraction workers for the cores, spinning
-        # while it waits (V2_03: 6 s of 102 s CPU; the results are bit-identical)
+        # while it waits
         with threadpool_limits(limits=1, user_api="blas"):
             return self._run(t_start_ns, t_end_ns, on_progress)
 
