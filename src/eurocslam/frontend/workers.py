@@ -89,7 +89,7 @@ class _Done:
     """A worker's last message, after the None that ends it: what the worker cost."""
 
     peak_rss_mb: float
-    cpu_s: float  # the worker process's CPU time (user + system)
+    cpu_s: float  # the worker process's CPU time (user + system) since it took its setup
 
 
 @dataclass(frozen=True)
@@ -111,6 +111,9 @@ def _worker_main(conn: Connection) -> None:
         setup: _Setup = conn.recv()
     except (EOFError, OSError):
         return
+    # the run's work only: not the imports before the setup (a worker started early imports
+    # while the parent starts, outside the run's wall clock)
+    cpu0 = time.process_time()
     n_slots, shape = setup.n_slots, setup.shape
     extractor = Extractor(setup.rig, setup.config)
     shm = _attach(setup.shm_name)
@@ -125,7 +128,7 @@ def _worker_main(conn: Connection) -> None:
                 conn.send(_WorkerFailure(traceback.format_exc()))
                 return
             conn.send(ff)
-        conn.send(_Done(peak_rss_mb(), time.process_time()))
+        conn.send(_Done(peak_rss_mb(), time.process_time() - cpu0))
     except (EOFError, OSError):
         pass  # the parent went away
     finally:

@@ -4,7 +4,6 @@ text lines (`summary.txt`, the console) and as JSON (`summary.json`)."""
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -12,17 +11,6 @@ import numpy as np
 from eurocslam.backend.types import ImuCheck
 from eurocslam.frontend.stream import ExtractionCost
 from eurocslam.pipeline.places import PlaceEvent
-
-
-def cpu_seconds() -> float:
-    """CPU time of this process and of its finished children (the frontend's extraction
-    workers, once the stream has ended)."""
-    try:
-        import resource
-    except ImportError:  # pragma: no cover - not on Windows
-        return time.process_time()
-    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + ru.ru_utime + ru.ru_stime
 
 
 def _finite(x: float) -> float | None:
@@ -58,7 +46,7 @@ class RunSummary:
     track_paths: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
     wall_s: float = 0.0
-    cpu_s: float = 0.0  # CPU time of the process (every thread) and its workers
+    cpu_s: float = 0.0  # CPU time of the process (every thread) and its workers' since set up
     peak_rss_mb: float = math.nan  # this process's peak resident memory
     worker_peak_rss_mb: list[float] = field(default_factory=list)  # extraction workers'
     # CPU time by thread: the one running the pipeline (tracking, backend, places, final batch),
@@ -80,6 +68,7 @@ class RunSummary:
         """The extraction workers' memory and CPU time, and the frame reader's (none inline)."""
         self.worker_peak_rss_mb = list(cost.worker_peak_rss_mb)
         self.worker_cpu_s = list(cost.worker_cpu_s)
+        self.cpu_s += sum(c for c in cost.worker_cpu_s if not math.isnan(c))
         self.reader_cpu_s = cost.reader_cpu_s if cost.worker_cpu_s else math.nan
 
     @property
