@@ -52,10 +52,10 @@ def run(args: argparse.Namespace) -> int:
     if is_bag_path(args.sequence):
         report = diagnose_bag(args.sequence, **source_options(args))
     else:
-        if args.topic or args.calib:
+        if args.topic or args.calib or args.imu_calib:
             print(
-                "eurocslam doctor: error: --calib and --topic apply to bags; a sequence folder "
-                "is checked against its own calibration files",
+                "eurocslam doctor: error: --calib, --imu-calib and --topic apply to bags; a "
+                "sequence folder is checked against its own calibration files",
                 file=sys.stderr,
             )
             return 2

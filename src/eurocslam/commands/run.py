@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     if args.no_imu:
         cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
-    source = open_sequence(args.sequence, **source_options(args))
+    source = open_sequence(args.sequence, **source_options(args, cfg.imu))
     cfg = resolve_mode(cfg, has_imu(source), source.name)
     live_sink = _start_live(args) if args.live else None
     try:

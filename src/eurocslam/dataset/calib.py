@@ -91,9 +91,14 @@ def _matrix4(data: dict[str, Any], path: Path | str) -> F64:
     return np.array(vals, dtype=np.float64).reshape(4, 4)
 
 
+# ROS's 8-coefficient model (k1 k2 p1 p2 k3 k4 k5 k6, OpenCV's CALIB_RATIONAL_MODEL order)
+RATIONAL = "rational_polynomial"
+
+
 @dataclass(frozen=True)
 class CameraCalib:
-    """Pinhole + radial-tangential camera, as in EuRoC's cam{0,1}/sensor.yaml."""
+    """Pinhole + radial-tangential camera, as in EuRoC's cam{0,1}/sensor.yaml (or ROS's
+    `rational_polynomial`, 8 coefficients, from a bag's CameraInfo)."""
 
     name: str
     T_body_cam: F64
@@ -104,7 +109,7 @@ class CameraCalib:
     fy: float
     cx: float
     cy: float
-    distortion: tuple[float, ...]  # k1, k2, p1, p2 (OpenCV plumb_bob order)
+    distortion: tuple[float, ...]  # k1, k2, p1, p2[, k3[, k4, k5, k6]] (OpenCV order)
     distortion_model: str = "radial-tangential"
 
     @property
@@ -167,14 +172,19 @@ def camera_from_yaml(
     if model != "pinhole":
         raise CalibrationError(f"{path}: camera_model '{model}' not supported (only pinhole)")
     dmodel = str(data.get("distortion_model", "radial-tangential"))
-    if dmodel not in ("radial-tangential", "radtan", "plumb_bob", "none"):
+    if dmodel not in ("radial-tangential", "radtan", "plumb_bob", "none", RATIONAL):
         raise CalibrationError(
-            f"{path}: distortion_model '{dmodel}' not supported (only radial-tangential)"
+            f"{path}: distortion_model '{dmodel}' not supported (radial-tangential, "
+            f"{RATIONAL} or none)"
         )
     intr = _floats(_key(data, "intrinsics", path), 4, "intrinsics", path)
     res = _floats(_key(data, "resolution", path), 2, "resolution", path)
     dist = _floats(data.get("distortion_coefficients", [0, 0, 0, 0]), None, "distortion", path)
-    if len(dist) not in (4, 5):
+    if dmodel == RATIONAL and len(dist) != 8:
+        raise CalibrationError(
+            f"{path}: key 'distortion_coefficients' must have 8 values for {RATIONAL}"
+        )
+    if dmodel != RATIONAL and len(dist) not in (4, 5):
         raise CalibrationError(f"{path}: key 'distortion_coefficients' must have 4 values")
     rate = float(_floats([_key(data, "rate_hz", path)], 1, "rate_hz", path)[0])
     if any(r != int(r) for r in res):
@@ -190,7 +200,7 @@ def camera_from_yaml(
         cx=intr[2],
         cy=intr[3],
         distortion=tuple(dist),
-        distortion_model="radial-tangential" if dmodel != "none" else "none",
+        distortion_model=dmodel if dmodel in ("none", RATIONAL) else "radial-tangential",
     )
     if validate:
         _raise_errors(check_camera(cam), path)
@@ -326,13 +336,21 @@ def check_transform(T: F64, key: str = "T_BS") -> list[CalibIssue]:
 
 def radial_fold_radius(k: tuple[float, ...], r_max: float) -> float | None:
     """Smallest normalised radius <= r_max where radial distortion stops growing (folds back),
-    or None. `k` holds k1, k2[, p1, p2, k3] in OpenCV order."""
+    or None. `k` holds k1, k2[, p1, p2, k3[, k4, k5, k6]] in OpenCV order (the last three are
+    the rational model's denominator)."""
     k1 = k[0] if len(k) > 0 else 0.0
     k2 = k[1] if len(k) > 1 else 0.0
     k3 = k[4] if len(k) > 4 else 0.0
     r = np.linspace(0.0, r_max, 512)
     r2 = r * r
-    deriv = 1 + 3 * k1 * r2 + 5 * k2 * r2 * r2 + 7 * k3 * r2 * r2 * r2
+    if len(k) >= 8:  # rational: r (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6)
+        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        den = 1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]))
+        dnum = r2 * (2 * k1 + r2 * (4 * k2 + r2 * 6 * k3))  # r * d(num)/dr
+        dden = r2 * (2 * k[5] + r2 * (4 * k[6] + r2 * 6 * k[7]))
+        deriv = np.where(den > 0, (num + dnum) / den - num * dden / den**2, -1.0)
+    else:
+        deriv = 1 + 3 * k1 * r2 + 5 * k2 * r2 * r2 + 7 * k3 * r2 * r2 * r2
     bad = np.nonzero(deriv <= 0)[0]
     return float(r[bad[0]]) if bad.size else None
 

@@ -12,6 +12,7 @@ from eurocslam.dataset.bag.files import is_bag_path
 from eurocslam.dataset.bag.reader import BagSequence
 from eurocslam.dataset.bag.topics import TopicMap
 from eurocslam.dataset.calib import StereoRig, load_rig
+from eurocslam.dataset.imu_noise import ImuNoise, with_imu_noise
 from eurocslam.dataset.kitti import KittiSequence
 from eurocslam.dataset.kitti_files import is_kitti_root, is_kitti_sequence
 from eurocslam.errors import DatasetError
@@ -25,6 +26,7 @@ def open_sequence(
     *,
     calib: Path | str | None = None,
     topics: TopicMap | Mapping[str, str] | None = None,
+    imu_noise: ImuNoise | None = None,
     quiet: bool = False,
 ) -> AslSequence | BagSequence | KittiSequence:
     """Open an input sequence: an EuRoC ASL folder (or its `mav0/`), a KITTI odometry sequence
@@ -32,12 +34,14 @@ def open_sequence(
     `.mcap` (including `eurocslam convert` output).
 
     `rig` wins over `calib` (a folder of cam0/cam1/imu0 `sensor.yaml` files); `topics` maps bag
-    topics to roles (`{"cam0": "/my/left"}`, bags only). Notes (calibration fallback, stamp
-    source) are logged (INFO) unless `quiet`; they stay in the source's `notes`.
+    topics to roles (`{"cam0": "/my/left"}`, bags only). `imu_noise`: IMU noise figures that
+    replace the calibration's (`--imu-calib`, the config's `imu:`; a bag calibrated by its
+    CameraInfo takes EuRoC's where none are given). Notes (calibration source and fallback,
+    stamp source) are logged (INFO) unless `quiet`; a bag keeps them in its `notes`.
     """
     p = Path(path)
     if is_bag_path(p):
-        seq = BagSequence(p, rig, calib=calib, topics=topics)
+        seq = BagSequence(p, rig, calib=calib, topics=topics, imu_noise=imu_noise)
         if not quiet:
             for note in seq.notes:
                 logger.info("note: %s", note)
@@ -55,4 +59,9 @@ def open_sequence(
         return KittiSequence(p)
     if rig is None and calib is not None:
         rig = load_rig(Path(calib))
-    return AslSequence(path, rig)
+    asl = AslSequence(path, rig)
+    if imu_noise is not None and not imu_noise.empty and asl.rig.imu is not None:
+        asl.rig = with_imu_noise(asl.rig, imu_noise, imu_noise.source)
+        if not quiet:
+            logger.info("note: IMU noise figures from %s", imu_noise.source)
+    return asl

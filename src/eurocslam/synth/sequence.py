@@ -11,7 +11,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from eurocslam.dataset.calib import StereoRig, calib_folder, default_rig, load_rig
+from eurocslam.dataset.bag.imu_union import unite_imu
+from eurocslam.dataset.calib import StereoRig, calib_folder, load_rig
+from eurocslam.dataset.split_imu import SplitImu, write_split_imu
 from eurocslam.errors import CalibrationError, DatasetError
 from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
 from eurocslam.memory import usable_cores
@@ -20,6 +22,7 @@ from eurocslam.synth.imu import (
     ImuStream,
     read_real_imu,
     real_imu_stream,
+    simulate_accelerometer,
     simulate_imu,
 )
 from eurocslam.synth.render import CameraModel, camera_model, cast_and_shade
@@ -58,23 +61,23 @@ class Scene:
     imu: ImuStream
     notes: list[str] = field(default_factory=list)
     shared: SharedWorld | None = None  # what a `world_from` world was built from
+    split: SplitImu | None = None  # accelerometer and gyroscope apart (`spec.accel_rate_hz`)
 
     # ---- construction ---------------------------------------------------------------------
     @classmethod
     def build(cls, spec: SynthSpec) -> Scene:
-        rig = load_rig(Path(spec.calib)) if spec.calib is not None else default_rig()
-        if rig.imu is None:
-            raise CalibrationError(
-                f"{calib_folder(Path(str(spec.calib)))}/imu0/sensor.yaml: file not found "
-                "(a synthetic sequence has an IMU: the calibration needs one)"
-            )
+        rig = _rig(spec)
+        assert rig.imu is not None
         imu_calib = rig.imu
         cam_rate, imu_rate = rig.cam0.rate_hz, imu_calib.rate_hz
         ratio = imu_rate / cam_rate
-        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+        # the cameras share the IMU's stamps when its rate is a whole multiple of theirs (EuRoC),
+        # else they run on their own clock (a RealSense: 30 Hz images, a 200/400 Hz IMU)
+        shared_clock = abs(ratio - round(ratio)) <= 1e-6 and round(ratio) >= 1
+        if not shared_clock and spec.imu is not None:
             raise DatasetError(
-                f"calibration: imu0 rate {imu_rate:g} Hz is not a whole multiple of the camera "
-                f"rate {cam_rate:g} Hz (the IMU must share the camera timestamps)"
+                f"--imu: real IMU rows need a camera rate ({cam_rate:g} Hz) that the IMU rate "
+                f"({imu_rate:g} Hz) is a whole multiple of"
             )
         ratio_i = round(ratio)
         if spec.world_from is not None:
@@ -128,7 +131,28 @@ class Scene:
                 noise=spec.imu_noise,
                 bias=spec.imu_bias,
             )
-        cam_t = imu.t_ns[::ratio_i].copy()
+        split = None
+        if spec.accel_rate_hz is not None:
+            t_acc = t_lo + np.round(
+                np.arange(int((t_hi - t_lo) * spec.accel_rate_hz // 1e9) + 1)
+                * 1e9
+                / spec.accel_rate_hz
+            ).astype(np.int64)
+            acc = simulate_accelerometer(
+                motion.spline, motion.t0_ns, t_acc, imu, imu_calib, spec.accel_rate_hz,
+                spec.seed, noise=spec.imu_noise,
+            )  # fmt: skip
+            split = SplitImu(t_acc, acc, imu.t_ns.copy(), imu.gyro.copy())
+            united = unite_imu(t_acc, acc, imu.t_ns, imu.gyro)
+            k = slice(united.dropped_before, imu.t_ns.size - united.dropped_after)
+            imu = ImuStream(united.imu.t_ns, united.imu.gyro, united.imu.accel, imu.bg[k],
+                            imu.ba[k])  # fmt: skip
+        if shared_clock:
+            cam_t = imu.t_ns[::ratio_i].copy()
+        else:
+            cam_period = 1e9 / cam_rate
+            n_cam = int((int(imu.t_ns[-1]) - t_lo) // cam_period) + 1
+            cam_t = t_lo + np.round(np.arange(n_cam) * cam_period).astype(np.int64)
         if cam_t.size < 2:
             raise DatasetError("the sequence is too short: fewer than 2 camera frames")
         models = (camera_model(rig.cam0), camera_model(rig.cam1))
@@ -140,7 +164,7 @@ class Scene:
             )
             t_rel = np.tile((cam_t - gt.t_ns[0]) * 1e-9, 2)
             check_flight_inside(world, shared, centres, t_rel, str(spec.trajectory))
-            return cls(spec, rig, motion, world, models, cam_t, imu, shared=shared)
+            return cls(spec, rig, motion, world, models, cam_t, imu, shared=shared, split=split)
         path = motion.spline.positions((cam_t - motion.t0_ns) * 1e-9)
         if spec.trajectory is not None:
             # the world encloses the whole recorded flight, so every crop of a sequence flies
@@ -149,7 +173,7 @@ class Scene:
             p_all = gt.p[::step] if motion.world_R is None else gt.p[::step] @ motion.world_R.T
             path = np.vstack([path, p_all])
         world = build_world(path, spec.seed, floor_z=floor_z, marker=spec.marker)
-        return cls(spec, rig, motion, world, models, cam_t, imu)
+        return cls(spec, rig, motion, world, models, cam_t, imu, split=split)
 
     # ---- rendering ------------------------------------------------------------------------
     def t_s(self, t_ns: int | np.ndarray) -> F64:
@@ -205,6 +229,33 @@ class Scene:
             rad = rad + sigma * rng.standard_normal(rad.shape, dtype=np.float32)
         img = np.clip(rad + np.float32(0.5), 0, 255).astype(np.uint8)
         return img, out
+
+
+def _rig(spec: SynthSpec) -> StereoRig:
+    """The rig a spec renders with: `calib`'s folder or a built-in `rig` (EuRoC's by default),
+    at `imu_rate_hz` when given; it must have an IMU."""
+    from dataclasses import replace
+
+    from eurocslam.dataset.calib_yaml import imu_yaml_text
+    from eurocslam.synth.rigs import builtin_rig
+
+    if spec.calib is not None and spec.rig is not None:
+        raise DatasetError("--calib and --rig: give one calibration")
+    rig = load_rig(Path(spec.calib)) if spec.calib is not None else builtin_rig(spec.rig or "euroc")
+    if rig.imu is None:
+        raise CalibrationError(
+            f"{calib_folder(Path(str(spec.calib)))}/imu0/sensor.yaml: file not found "
+            "(a synthetic sequence has an IMU: the calibration needs one)"
+        )
+    for name, rate in (("imu", spec.imu_rate_hz), ("accel", spec.accel_rate_hz)):
+        if rate is not None and not 1.0 <= rate <= 10000.0:
+            raise DatasetError(f"--{name}-rate {rate:g}: expected 1 to 10000 Hz")
+    if spec.imu_rate_hz is not None:
+        imu = replace(rig.imu, rate_hz=float(spec.imu_rate_hz))
+        texts = dict(rig.yaml_texts)
+        texts["imu0"] = imu_yaml_text(imu, f"{rig.imu.rate_hz:g} Hz IMU at {imu.rate_hz:g} Hz")
+        rig = replace(rig, imu=imu, yaml_texts=tuple(sorted(texts.items())))
+    return rig
 
 
 # ---- parallel frame writing -----------------------------------------------------------------
@@ -332,6 +383,14 @@ def synthesize(
             imu.ba,
             summary,
         )
+        if scene.split is not None:
+            sp = scene.split
+            ka = ~spec.in_blackout(scene.t_s(sp.accel_t_ns))
+            kg = ~spec.in_blackout(scene.t_s(sp.gyro_t_ns))
+            write_split_imu(
+                stage / "mav0",
+                SplitImu(sp.accel_t_ns[ka], sp.accel[ka], sp.gyro_t_ns[kg], sp.gyro[kg]),
+            )
     except BaseException:
         import shutil
 
@@ -370,6 +429,7 @@ def _summary(scene: Scene, st: Any, render_wall: float, cpu: float, workers: int
         "frames": n,
         "imu_samples": int(scene.imu.t_ns.size),
         "imu": "real rows" if scene.imu.real else "simulated",
+        **_split_summary(scene),
         "t_first_ns": int(scene.cam_t_ns[0]),
         "t_last_ns": int(scene.cam_t_ns[-1]),
         "duration_s": float((scene.cam_t_ns[-1] - scene.cam_t_ns[0]) * 1e-9),
@@ -380,4 +440,19 @@ def _summary(scene: Scene, st: Any, render_wall: float, cpu: float, workers: int
         "render_cpu_ms_per_pair": 1000.0 * cpu / max(n, 1),
         "workers": workers,
         "builtin_t0_ns": BUILTIN_T0_NS if scene.spec.trajectory is None else None,
+    }
+
+
+def _split_summary(scene: Scene) -> dict[str, Any]:
+    """synth.json keys of an accelerometer sampled apart (none otherwise: old summaries stay)."""
+    sp = scene.split
+    if sp is None:
+        return {}
+    return {
+        "imu_split": {
+            "accel_hz": scene.spec.accel_rate_hz,
+            "gyro_hz": scene.rig.imu.rate_hz if scene.rig.imu is not None else None,
+            "accel_samples": int(sp.accel_t_ns.size),
+            "gyro_samples": int(sp.gyro_t_ns.size),
+        }
     }

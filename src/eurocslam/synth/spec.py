@@ -14,6 +14,7 @@ from eurocslam.geometry import F64
 
 DEFAULT_DURATION_S = 30.0
 TINY_DURATION_S = 2.0
+REALSENSE_ACCEL_HZ = 250.0  # a D435i's accelerometer (63 or 250 Hz; gyro 200 or 400 Hz)
 
 
 @dataclass(frozen=True)
@@ -38,7 +39,12 @@ class SynthSpec:
     (ASL imu0/data.csv) to ship instead of simulated ones; the images then follow the motion
     those rows measured (high frequency) on the ground truth (low frequency), in a world turned
     onto the accelerometer's gravity (`fusion.py`; `knot_dt_s` is unused). `calib`: a folder
-    with cam0/cam1/imu0 sensor.yaml (default: EuRoC's, shipped in the package).
+    with cam0/cam1/imu0 sensor.yaml (default: EuRoC's, shipped in the package); `rig`: a
+    built-in rig instead (`synth.rigs`: "euroc", "realsense"). `imu_rate_hz`: the IMU (gyro)
+    rate instead of the calibration's; `accel_rate_hz`: the accelerometer as a separate stream
+    at this rate, united onto the gyro's stamps by linear interpolation (`imu0/data.csv`; both
+    streams also in `accel0/`, `gyro0/`). A camera rate that the IMU rate is no whole multiple
+    of gives the cameras their own clock.
     """
 
     duration_s: float | None = None
@@ -65,12 +71,22 @@ class SynthSpec:
     # alone: every sequence rendered with the same files and seed flies through the same world
     # (`shared_world.py`)
     world_from: tuple[Path, ...] | None = None
+    rig: str | None = None
+    imu_rate_hz: float | None = None
+    accel_rate_hz: float | None = None
 
     @classmethod
     def tiny(cls, seed: int = 0, **kw: Any) -> SynthSpec:
         """A ~2 s built-in sequence (40 stereo pairs): a few seconds to make, for tests."""
         kw.setdefault("duration_s", TINY_DURATION_S)
         return cls(seed=seed, **kw)
+
+    @classmethod
+    def realsense(cls, seed: int = 0, **kw: Any) -> SynthSpec:
+        """The RealSense-like rig: 848x480 infrared pair at 30 Hz, ~5 cm baseline, gyroscope
+        at 400 Hz and the accelerometer apart at 250 Hz."""
+        kw.setdefault("accel_rate_hz", REALSENSE_ACCEL_HZ)
+        return cls(seed=seed, rig="realsense", **kw)
 
     def ideal(self) -> SynthSpec:
         """The same spec with every realism switch off (no noise, biases, vignetting, ...)."""
@@ -97,6 +113,9 @@ class SynthSpec:
             del d["world_from"]  # (likewise)
         else:
             d["world_from"] = [str(Path(p).resolve()) for p in d["world_from"]]
+        for k in ("rig", "imu_rate_hz", "accel_rate_hz"):
+            if d[k] is None:
+                del d[k]  # (likewise)
         return d
 
     def in_blackout(self, t_s: F64) -> NDArray[np.bool_]:

@@ -1,6 +1,7 @@
-"""Calibration of a bag input (bags carry none): a given rig, a `--calib DIR` folder, the
-`sensor.yaml` files attached to an MCAP, or the built-in EuRoC calibration; and the extrinsic that
-moves a raw Vicon marker pose (`TransformStamped`) to the body frame."""
+"""Calibration of a bag input, in this order: a given rig, a `--calib DIR` folder, the
+`sensor.yaml` files attached to an MCAP, the bag's own CameraInfo and `/tf_static` (`bag_rig`,
+built by the reader after its pass over the bag), or the built-in EuRoC calibration; and the
+extrinsic that moves a raw Vicon marker pose (`TransformStamped`) to the body frame."""
 
 from __future__ import annotations
 
@@ -11,8 +12,8 @@ import numpy as np
 from eurocslam.dataset.bag.files import mcap_sensor_yaml_texts
 from eurocslam.dataset.bag.topics import EUROC_VICON_TOPIC
 from eurocslam.dataset.calib import (
+    ImuCalib,
     StereoRig,
-    default_rig,
     load_rig,
     load_sensor_yaml,
     rig_from_texts,
@@ -42,11 +43,34 @@ def orthonormalize(T: F64) -> F64:
     return make_T(r, T[:3, 3])
 
 
+def bag_calibration_name(path: Path, with_imu: bool) -> str:
+    """`calib_source` of a rig built from a bag's CameraInfo (and /tf_static)."""
+    return f"CameraInfo{' + /tf_static' if with_imu else ''} of {path.name}"
+
+
+def imu_calibration(rate_hz: float) -> ImuCalib:
+    """The IMU of a rig from a bag: the body frame itself, the measured rate; its noise figures
+    come from outside the bag (`dataset/imu_noise.py`), EuRoC's until then."""
+    from eurocslam.dataset.imu_noise import default_imu_noise
+
+    d = default_imu_noise()
+    assert d.complete
+    return ImuCalib(
+        T_body_imu=np.eye(4),
+        rate_hz=rate_hz,
+        gyro_noise_density=float(d.gyroscope_noise_density),  # type: ignore[arg-type]
+        gyro_random_walk=float(d.gyroscope_random_walk),  # type: ignore[arg-type]
+        accel_noise_density=float(d.accelerometer_noise_density),  # type: ignore[arg-type]
+        accel_random_walk=float(d.accelerometer_random_walk),  # type: ignore[arg-type]
+    )
+
+
 def resolve_calibration(
     path: Path, rig: StereoRig | None, calib_dir: Path | None, notes: list[str]
-) -> tuple[StereoRig, str]:
-    """The rig of a bag and where it came from (`BUILTIN` for the built-in EuRoC calibration):
-    `rig` if given, else `calib_dir`, else the MCAP's attached sensor.yaml files."""
+) -> tuple[StereoRig | None, str]:
+    """The rig of a bag given from outside it, and where it came from: `rig` if given, else
+    `calib_dir`, else the MCAP's attached sensor.yaml files; (None, "") when none of them (the
+    reader then reads the bag's CameraInfo, else takes the built-in EuRoC calibration)."""
     if rig is not None:
         return rig, "given calibration"
     if calib_dir is not None:
@@ -65,7 +89,7 @@ def resolve_calibration(
                 "both cam0 and cam1; pass --calib DIR"
             )
         return rig_from_texts(texts, f"{path} (attachment)"), f"{path.name} attachments"
-    return default_rig(), BUILTIN
+    return None, ""
 
 
 def gt_sensor_extrinsic(calib_dir: Path | None, topic: str, notes: list[str]) -> F64:

@@ -16,8 +16,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from eurocslam.dataset.bag.calibration import BUILTIN, gt_sensor_extrinsic, resolve_calibration
+from eurocslam.dataset.bag.bag_rig import BagCamera, rig_from_camera_infos
+from eurocslam.dataset.bag.calibration import (
+    BUILTIN,
+    bag_calibration_name,
+    gt_sensor_extrinsic,
+    imu_calibration,
+    resolve_calibration,
+)
+from eurocslam.dataset.bag.camera_info import CameraInfo, camera_info_from_msg
+from eurocslam.dataset.bag.discovery import camera_info_topic, discover_imu, discover_stereo
 from eurocslam.dataset.bag.files import bag_kind, is_bag_path, open_reader
+from eurocslam.dataset.bag.imu_union import unite_imu
 from eurocslam.dataset.bag.messages import (
     check_encoding,
     compressed_msg_to_mono,
@@ -28,8 +38,16 @@ from eurocslam.dataset.bag.messages import (
     stamp_of,
 )
 from eurocslam.dataset.bag.pairing import BagEntry, camera_map, join_cameras, snap_cam1
-from eurocslam.dataset.bag.topics import REQUIRED_ROLES, ROLE_TYPES, ROLES, TopicMap
+from eurocslam.dataset.bag.tf_tree import TF_STATIC_TOPIC, TF_TYPE, TfTree, edges_from_tf_message
+from eurocslam.dataset.bag.topics import (
+    IMU_ROLES,
+    INFO_ROLES,
+    ROLE_TYPES,
+    ROLES,
+    TopicMap,
+)
 from eurocslam.dataset.calib import StereoRig, calib_folder
+from eurocslam.dataset.imu_noise import ImuNoise, with_imu_noise
 from eurocslam.dataset.types import (
     I64,
     U8,
@@ -50,6 +68,23 @@ from eurocslam.geometry import (
     rot_to_quat_wxyz,
     xyzw_to_wxyz,
 )
+
+
+def _swap(d: dict[str, Any], k0: str, k1: str) -> None:
+    """Exchange two keys' values (either may be absent)."""
+    v0, v1 = d.pop(k0, None), d.pop(k1, None)
+    if v1 is not None:
+        d[k0] = v1
+    if v0 is not None:
+        d[k1] = v0
+
+
+def _rate_hz(stamps: I64) -> float:
+    """Rate of a stream from the median period of its sorted unique stamps (0: fewer than 2)."""
+    t = np.unique(np.asarray(stamps, dtype=np.int64))
+    if t.size < 2:
+        return 0.0
+    return round(1e9 / float(np.median(np.diff(t))), 3)
 
 
 @dataclass
@@ -109,6 +144,7 @@ class BagSequence:
         *,
         calib: Path | str | None = None,
         topics: TopicMap | Mapping[str, str] | None = None,
+        imu_noise: ImuNoise | None = None,
         show_progress: bool | None = None,
     ) -> None:
         self.path = Path(path)
@@ -142,44 +178,162 @@ class BagSequence:
         self.ros2 = False
         self._conn_role: dict[int, str] = {}
         self._cam1_alias: dict[int, int] = {}  # cam1 stamp -> the cam0 stamp it pairs with
-        self.rig, self.calib_source = resolve_calibration(
+        self._unordered_pair = False  # cam0/cam1 found by type, left/right not yet decided
+        # what the bag says about its calibration (read in `_static_pass`)
+        self.info_topics: dict[str, str] = {}  # cam0_info / cam1_info -> topic
+        self.camera_infos: dict[str, CameraInfo] = {}  # cam0 / cam1 -> its first CameraInfo
+        self.frame_ids: dict[str, str] = {}  # cam0, cam1, imu, accel, gyro -> header.frame_id
+        self.tf = TfTree()
+        explicit, self.calib_source = resolve_calibration(
             self.path, rig, self.calib_dir, self.notes
         )
         self.T_body_gtsensor: F64 = np.eye(4)
         self._scan(show_progress)
+        self.rig: StereoRig = explicit if explicit is not None else self._rig_from_bag()
+        self._apply_imu_noise(imu_noise, from_bag=explicit is None)
         self.stamp_source = self._choose_camera_stamps()
         self.frame_index = self._join_cameras()
         self._check_image_sizes()
 
     # ---- the index pass -------------------------------------------------------------------
     def _resolve_topics(self, reader: Any) -> dict[str, list[Any]]:
+        """Each role's connections: the user's topic, else the first default present, else found
+        by message type (`discovery`); CameraInfo beside each camera."""
         available = {name: info for name, info in reader.topics.items()}
         self.bag_topics = {n: (str(i.msgtype), int(i.msgcount)) for n, i in available.items()}
+        types = {n: t for n, (t, _) in self.bag_topics.items()}
         listing = ", ".join(f"{n} ({t}, {c})" for n, (t, c) in sorted(self.bag_topics.items()))
-        out: dict[str, list[Any]] = {}
+        where = str(self.path)
+        chosen: dict[str, str] = {}
         for role in ROLES:
             cands = self.topic_map.candidates(role)
             found = next((t for t in cands if t in available), None)
-            if found is None:
-                if role in REQUIRED_ROLES or role in self.topic_map.explicit:
-                    raise DatasetError(
-                        f"{self.path}: no topic for {role} (looked for {', '.join(cands)}; map "
-                        f"one with --topic {role}=TOPIC). The bag has: {listing or 'no topics'}"
-                    )
-                continue
+            if found is not None:
+                chosen[role] = found
+            elif role in self.topic_map.explicit:
+                raise DatasetError(
+                    f"{self.path}: no topic for {role} (looked for {', '.join(cands)}; map "
+                    f"one with --topic {role}=TOPIC). The bag has: {listing or 'no topics'}"
+                )
+        if "cam0" not in chosen or "cam1" not in chosen:
+            missing = "cam0" if "cam0" not in chosen else "cam1"
+            try:
+                pair = discover_stereo(types, chosen.get("cam0"), chosen.get("cam1"), where)
+            except DatasetError as e:
+                reason = str(e).removeprefix(f"{where}: ")
+                raise DatasetError(
+                    f"{self.path}: no topic for {missing} (looked for "
+                    f"{', '.join(self.topic_map.candidates(missing))}, then by message type: "
+                    f"{reason}; or --topic {missing}=TOPIC). The bag has: "
+                    f"{listing or 'no topics'}"
+                ) from None
+            chosen["cam0"], chosen["cam1"] = pair.left, pair.right
+            self._unordered_pair = not pair.ordered
+            if pair.ordered:
+                self.notes.append(
+                    f"stereo pair found by {pair.how}: left {pair.left}, right {pair.right}"
+                )
+        if not any(r in chosen for r in IMU_ROLES):
+            found_imu = discover_imu(types, where)
+            for role in IMU_ROLES:
+                t = getattr(found_imu, role)
+                if t is not None:
+                    chosen[role] = t
+            if found_imu.how:
+                picked = ", ".join(f"{r} {chosen[r]}" for r in IMU_ROLES if r in chosen)
+                self.notes.append(f"IMU found by message type ({found_imu.how}): {picked}")
+        if "imu" in chosen and ("accel" in chosen or "gyro" in chosen):
+            raise DatasetError(
+                f"{self.path}: an IMU topic ({chosen['imu']}) and separate accel/gyro topics "
+                "were both given; use one or the other"
+            )
+        if ("accel" in chosen) != ("gyro" in chosen):
+            have, need = ("accel", "gyro") if "accel" in chosen else ("gyro", "accel")
+            raise DatasetError(
+                f"{self.path}: {have} topic {chosen[have]} without a {need} topic (add "
+                f"--topic {need}=TOPIC)"
+            )
+        for cam, info_role in INFO_ROLES.items():
+            if info_role not in chosen:
+                t = camera_info_topic(chosen[cam], types)
+                if t is not None:
+                    chosen[info_role] = t
+        out: dict[str, list[Any]] = {}
+        for role, found in chosen.items():
             conns = list(available[found].connections)
-            types = {c.msgtype for c in conns}
-            bad = sorted(t for t in types if t not in ROLE_TYPES[role])
+            bad = sorted({c.msgtype for c in conns} - set(ROLE_TYPES[role]))
             if bad:
                 raise DatasetError(
                     f"{self.path}: topic {found} ({role}) has message type {', '.join(bad)}; "
                     f"expected {' or '.join(ROLE_TYPES[role])}"
                 )
+            if role in INFO_ROLES.values():
+                self.info_topics[role] = found
             out[role] = conns
-            self.stats[role] = TopicStats(role, found, conns[0].msgtype)
-        if self.stats["cam0"].topic == self.stats["cam1"].topic:
-            raise DatasetError(f"{self.path}: cam0 and cam1 both map to {self.stats['cam0'].topic}")
+            if role not in INFO_ROLES.values():
+                self.stats[role] = TopicStats(role, found, conns[0].msgtype)
+        if chosen["cam0"] == chosen["cam1"]:
+            raise DatasetError(f"{self.path}: cam0 and cam1 both map to {chosen['cam0']}")
         return out
+
+    def _first_message(self, reader: Any, conns: list[Any]) -> Any | None:
+        for conn, log_ns, raw in reader.messages(connections=conns):
+            return self._deserialize(reader, raw, conn, log_ns)
+        return None
+
+    def _static_pass(self, reader: Any, role_conns: dict[str, list[Any]]) -> None:
+        """What the bag says about its calibration, read before the index pass: every
+        `/tf_static` message, the first CameraInfo of each camera, and the `header.frame_id` of
+        the first camera and IMU messages; then cam0/cam1 put in order if discovery could not."""
+        tf_conns = [c for c in reader.connections if c.topic == TF_STATIC_TOPIC]
+        tf_conns = [c for c in tf_conns if c.msgtype == TF_TYPE]
+        if tf_conns:
+            for conn, log_ns, raw in reader.messages(connections=tf_conns):
+                msg = self._deserialize(reader, raw, conn, log_ns)
+                for edge in edges_from_tf_message(msg, TF_STATIC_TOPIC):
+                    self.tf.add(edge)
+        for cam, info_role in INFO_ROLES.items():
+            if info_role in role_conns:
+                msg = self._first_message(reader, role_conns[info_role])
+                if msg is not None:
+                    self.camera_infos[cam] = camera_info_from_msg(msg, self.info_topics[info_role])
+        for role in ("cam0", "cam1", *IMU_ROLES):
+            if role in role_conns:
+                msg = self._first_message(reader, role_conns[role])
+                if msg is not None:
+                    self.frame_ids[role] = str(msg.header.frame_id).strip().lstrip("/")
+        if self._unordered_pair:
+            self._order_pair(role_conns)
+
+    def _order_pair(self, role_conns: dict[str, list[Any]]) -> None:
+        """cam0 is the left camera: decided by the tf tree (cam1 at +x in cam0's optical
+        frame), else by the CameraInfo P (the right camera's P[0, 3] is negative)."""
+        a, b = self.stats["cam0"].topic, self.stats["cam1"].topic
+        fa, fb = self.frame_ids.get("cam0", ""), self.frame_ids.get("cam1", "")
+        x: float | None = None
+        how = ""
+        if fa and fb and fa != fb and self.tf.connected(fa, fb):
+            x = float(self.tf.lookup(fa, fb)[0, 3])  # b's origin in a's frame
+            how = "the /tf_static baseline"
+        elif "cam0" in self.camera_infos and "cam1" in self.camera_infos:
+            x = self.camera_infos["cam0"].Tx - self.camera_infos["cam1"].Tx
+            how = "the CameraInfo P[0, 3]"
+        if not x:
+            raise DatasetError(
+                f"{self.path}: cannot tell the left camera from the right between {a} and {b} "
+                "(no tf baseline, no P[0, 3]); name them with --topic left=TOPIC "
+                "--topic right=TOPIC"
+            )
+        if x < 0:  # b is on the left: swap the roles
+            _swap(self.stats, "cam0", "cam1")
+            _swap(self.frame_ids, "cam0", "cam1")
+            _swap(self.camera_infos, "cam0", "cam1")
+            _swap(role_conns, "cam0", "cam1")
+            _swap(self.info_topics, "cam0_info", "cam1_info")
+            for role in ("cam0", "cam1"):
+                self.stats[role].role = role
+            a, b = b, a
+        self.notes.append(f"stereo pair: left {a}, right {b} (decided by {how})")
 
     def _scan(self, show_progress: bool | None) -> None:
         from eurocslam.progress import bar
@@ -190,9 +344,16 @@ class BagSequence:
         gt_v: list[tuple[float, ...]] = []
         le_t: list[int] = []
         le_v: list[tuple[float, float, float]] = []
+        ac_t: list[int] = []
+        ac_v: list[tuple[float, ...]] = []
+        gy_t: list[int] = []
+        gy_v: list[tuple[float, ...]] = []
         with open_reader(self.path) as reader:
             self.ros2 = bool(reader.is2)
             role_conns = self._resolve_topics(reader)
+            self._static_pass(reader, role_conns)
+            for info_role in INFO_ROLES.values():  # CameraInfo is read once, not indexed
+                role_conns.pop(info_role, None)
             self._conn_role = {id(c): r for r, cs in role_conns.items() for c in cs}
             conns = [c for cs in role_conns.values() for c in cs]
             fast: dict[int, bool] = {}  # connection -> raw fast path verified on its first message
@@ -217,6 +378,12 @@ class BagSequence:
                     if role == "imu":
                         imu_t.append(stamp)
                         imu_v.append(vals)
+                    elif role == "accel":
+                        ac_t.append(stamp)
+                        ac_v.append(vals)
+                    elif role == "gyro":
+                        gy_t.append(stamp)
+                        gy_v.append(vals)
                     elif role == "groundtruth":
                         gt_t.append(stamp)
                         gt_v.append(vals)
@@ -227,7 +394,10 @@ class BagSequence:
                 pb.close()
         for st in self.stats.values():
             st.freeze()
-        self.imu = self._build_imu(imu_t, imu_v)
+        if "accel" in self.stats:
+            self.imu = self._unite_imu(ac_t, ac_v, gy_t, gy_v)
+        else:
+            self.imu = self._build_imu(imu_t, imu_v)
         self.groundtruth = self._build_groundtruth(gt_t, gt_v)
         self.leica = self._build_leica(le_t, le_v)
 
@@ -336,6 +506,130 @@ class BagSequence:
         return ImuData(
             ts[idx], np.ascontiguousarray(vals[:, :3]), np.ascontiguousarray(vals[:, 3:])
         )
+
+    def _unite_imu(
+        self,
+        ac_t: list[int],
+        ac_v: list[tuple[float, ...]],
+        gy_t: list[int],
+        gy_v: list[tuple[float, ...]],
+    ) -> ImuData:
+        """Separate accelerometer and gyroscope streams united on the gyro stamps
+        (`imu_union`); the accelerometer rotated into the gyro's frame when the tf tree
+        relates two different frames."""
+        streams = {}
+        for role, t, v, cols in (("accel", ac_t, ac_v, slice(3, 6)), ("gyro", gy_t, gy_v,
+                                                                      slice(0, 3))):  # fmt: skip
+            topic = self.stats[role].topic
+            if not t:
+                raise DatasetError(f"{self.path}: {topic}: no IMU messages")
+            ts = self._stamps(role, t)
+            vals = np.asarray(v, dtype=np.float64)[:, cols]
+            if not np.all(np.isfinite(vals)):
+                bad = int(np.flatnonzero(~np.all(np.isfinite(vals), axis=1))[0])
+                raise DatasetError(f"{self.path}: {topic}: non-finite IMU value at stamp {ts[bad]}")
+            idx = self._sorted_unique(ts, role)
+            streams[role] = (ts[idx], vals[idx])
+        fa, fg = self.frame_ids.get("accel", ""), self.frame_ids.get("gyro", "")
+        R_gyro_accel = None
+        if fa and fg and fa != fg:
+            if self.tf.connected(fg, fa):
+                T = self.tf.lookup(fg, fa)
+                if not np.allclose(T[:3, :3], np.eye(3), atol=1e-12):
+                    R_gyro_accel = T[:3, :3]
+                if float(np.linalg.norm(T[:3, 3])) > 0.01:
+                    self.notes.append(
+                        f"accelerometer frame '{fa}' is {np.linalg.norm(T[:3, 3]) * 100:.1f} cm "
+                        f"from the gyro's '{fg}': the lever arm is ignored"
+                    )
+            else:
+                self.notes.append(
+                    f"accelerometer frame '{fa}' and gyro frame '{fg}' are not related in "
+                    "/tf_static: taken as aligned"
+                )
+        united = unite_imu(*streams["accel"], *streams["gyro"], R_gyro_accel=R_gyro_accel)
+        a_t, g_t = streams["accel"][0], streams["gyro"][0]
+        self.notes.append(
+            f"IMU united from {self.stats['accel'].topic} ({_rate_hz(a_t):.1f} Hz) and "
+            f"{self.stats['gyro'].topic} ({_rate_hz(g_t):.1f} Hz): the accelerometer linearly "
+            f"interpolated onto the gyro's {len(united.imu)} stamps"
+            + (f" ({united.dropped} gyro samples outside the accelerometer's span dropped)"
+               if united.dropped else "")
+        )  # fmt: skip
+        if len(united.imu) == 0:
+            raise DatasetError(
+                f"{self.path}: {self.stats['accel'].topic} and {self.stats['gyro'].topic} do "
+                "not overlap in time"
+            )
+        return united.imu
+
+    def _rig_from_bag(self) -> StereoRig:
+        """The rig from the bag's CameraInfo and /tf_static; EuRoC's built in when the bag
+        has no CameraInfo (the image size check then guards against a foreign camera)."""
+        have = [c for c in ("cam0", "cam1") if c in self.camera_infos]
+        if not have:
+            self.calib_source = BUILTIN
+            from eurocslam.dataset.calib import default_rig
+
+            return default_rig()
+        if len(have) == 1:
+            other = "cam1" if have[0] == "cam0" else "cam0"
+            raise CalibrationError(
+                f"{self.path}: {self.camera_infos[have[0]].topic} gives {have[0]}'s calibration "
+                f"but {self.stats[other].topic} has no CameraInfo beside it (name it with "
+                f"--topic {other}_info=TOPIC, or pass --calib DIR)"
+            )
+        cams = []
+        for role in ("cam0", "cam1"):
+            info = self.image_info.get(role)
+            cams.append(
+                BagCamera(
+                    role=role,
+                    image_topic=self.stats[role].topic,
+                    frame_id=self.frame_ids.get(role, ""),
+                    image_size=(info.width, info.height) if info is not None else None,
+                    rate_hz=_rate_hz(self.stats[role].header_array()),
+                    info=self.camera_infos[role],
+                )
+            )
+        imu_role = "gyro" if "gyro" in self.stats else "imu"
+        imu_frame = None
+        imu = None
+        if imu_role in self.stats and len(self.imu):
+            imu_frame = self.frame_ids.get(imu_role, "")
+            if not imu_frame:
+                raise CalibrationError(
+                    f"{self.path}: {self.stats[imu_role].topic}: the IMU messages have no "
+                    "header.frame_id, so the cameras cannot be placed relative to the IMU "
+                    "(pass --calib DIR)"
+                )
+            imu = imu_calibration(_rate_hz(self.imu.t_ns))
+        rig = rig_from_camera_infos(cams[0], cams[1], self.tf, imu_frame, imu, self.notes)
+        self.calib_source = bag_calibration_name(self.path, imu_frame is not None)
+        return rig
+
+    def _apply_imu_noise(self, noise: ImuNoise | None, from_bag: bool) -> None:
+        """IMU noise figures from outside the bag (`--imu-calib`, the config's `imu:`) replace
+        the calibration's; a rig from the bag's CameraInfo takes EuRoC's for the ones not
+        given, with a note."""
+        if self.rig.imu is None:
+            return
+        from eurocslam.dataset.imu_noise import default_imu_noise
+
+        given = noise if noise is not None else ImuNoise()
+        if from_bag and self.calib_source != BUILTIN:
+            if not given.complete:
+                which = "none given" if given.empty else "some not given"
+                self.notes.append(
+                    f"IMU noise: the bag carries no figures ({which}): using "
+                    f"{default_imu_noise().source} (give yours with --imu-calib imu.yaml or "
+                    "the imu: section of --config)"
+                )
+            self.rig = with_imu_noise(self.rig, given.over(default_imu_noise()), self.calib_source)
+        elif not given.empty:
+            self.rig = with_imu_noise(self.rig, given, given.source)
+        if not given.empty:
+            self.notes.append(f"IMU noise figures from {given.source}")
 
     def _build_groundtruth(self, t: list[int], v: list[tuple[float, ...]]) -> GroundTruth | None:
         if "groundtruth" not in self.stats or not t:
