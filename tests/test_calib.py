@@ -14,15 +14,17 @@ import yaml
 from eurocslam.dataset.calib import (
     CameraCalib,
     camera_from_yaml,
+    default_rig,
+    load_rig,
+    load_sensor_yaml,
+    load_sensor_yaml_text,
+)
+from eurocslam.dataset.doctor.calib_checks import (
     check_camera,
     check_imu,
     check_stereo,
     check_stereo_pair,
     check_transform,
-    default_rig,
-    load_rig,
-    load_sensor_yaml,
-    load_sensor_yaml_text,
     radial_fold_radius,
 )
 from eurocslam.errors import CalibrationError
