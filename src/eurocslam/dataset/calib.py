@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from eurocslam.camera_models import MODELS, canonical_model_name
 from eurocslam.dataset.doctor.calib_checks import (
     check_camera,
     check_imu,
@@ -114,6 +115,30 @@ def _matrix4(data: dict[str, Any], path: Path | str) -> F64:
     return np.array(vals, dtype=np.float64).reshape(4, 4)
 
 
+def distortion_model_of(value: Any, path: Path | str, key: str = "distortion_model") -> str:
+    """Our name (`camera_models.MODELS`) of a calibration file's distortion model; an unknown
+    one is an error naming the file and key."""
+    name = canonical_model_name(str(value))
+    if name is None:
+        known = ", ".join(sorted(MODELS))
+        raise CalibrationError(
+            f"{path}: key '{key}': distortion model '{value}' not supported (known: {known})"
+        )
+    return name
+
+
+def check_coefficient_count(model: str, coeffs: list[float], key: str, path: Path | str) -> None:
+    """The model takes this many coefficients (an equidistant lens 4, radial-tangential 4 or
+    5); else an error naming the file and key."""
+    counts = MODELS[model].coeff_counts
+    if len(coeffs) not in counts:
+        n = " or ".join(str(c) for c in counts if c)
+        raise CalibrationError(
+            f"{path}: key '{key}' must have {n} values for distortion model '{model}', "
+            f"has {len(coeffs)}"
+        )
+
+
 def camera_from_yaml(
     data: dict[str, Any], name: str, path: Path | str, *, validate: bool = True
 ) -> CameraCalib:
@@ -122,16 +147,11 @@ def camera_from_yaml(
     model = str(data.get("camera_model", "pinhole"))
     if model != "pinhole":
         raise CalibrationError(f"{path}: camera_model '{model}' not supported (only pinhole)")
-    dmodel = str(data.get("distortion_model", "radial-tangential"))
-    if dmodel not in ("radial-tangential", "radtan", "plumb_bob", "none"):
-        raise CalibrationError(
-            f"{path}: distortion_model '{dmodel}' not supported (only radial-tangential)"
-        )
+    dmodel = distortion_model_of(data.get("distortion_model", "radial-tangential"), path)
     intr = _floats(_key(data, "intrinsics", path), 4, "intrinsics", path)
     res = _floats(_key(data, "resolution", path), 2, "resolution", path)
     dist = _floats(data.get("distortion_coefficients", [0, 0, 0, 0]), None, "distortion", path)
-    if len(dist) not in (4, 5):
-        raise CalibrationError(f"{path}: key 'distortion_coefficients' must have 4 values")
+    check_coefficient_count(dmodel, dist, "distortion_coefficients", path)
     rate = float(_floats([_key(data, "rate_hz", path)], 1, "rate_hz", path)[0])
     if any(r != int(r) for r in res):
         raise CalibrationError(f"{path}: key 'resolution' must be whole pixels, got {res}")
@@ -146,7 +166,7 @@ def camera_from_yaml(
         cx=intr[2],
         cy=intr[3],
         distortion=tuple(dist),
-        distortion_model="radial-tangential" if dmodel != "none" else "none",
+        distortion_model=dmodel,
     )
     if validate:
         raise_errors(check_camera(cam), path)

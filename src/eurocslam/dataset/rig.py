@@ -7,16 +7,24 @@ points into the body (IMU) frame.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from eurocslam.camera_models import CameraModel, make_camera_model
 from eurocslam.geometry import F64, inv_T
 
 
 @dataclass(frozen=True)
 class CameraCalib:
-    """Pinhole + radial-tangential camera, as in EuRoC's cam{0,1}/sensor.yaml."""
+    """One camera: extrinsics, rate, image size, intrinsics and distortion.
+
+    `distortion_model` names the camera model (`eurocslam.camera_models.MODELS`:
+    "radial-tangential" as EuRoC's, "equidistant" for a Kannala-Brandt fisheye as TUM-VI's,
+    "none" for a rectified pinhole) and `distortion` holds its coefficients (radial-tangential:
+    k1, k2, p1, p2[, k3] in OpenCV's order; equidistant: k1..k4). `model` is the projection
+    they make, the one interface everything that projects or unprojects uses."""
 
     name: str
     T_body_cam: F64
@@ -27,8 +35,15 @@ class CameraCalib:
     fy: float
     cx: float
     cy: float
-    distortion: tuple[float, ...]  # k1, k2, p1, p2 (OpenCV plumb_bob order)
+    distortion: tuple[float, ...]  # the model's coefficients (see the docstring)
     distortion_model: str = "radial-tangential"
+
+    @functools.cached_property
+    def model(self) -> CameraModel:
+        """The camera model (projection, unprojection, valid region) of these intrinsics."""
+        return make_camera_model(
+            self.distortion_model, self.fx, self.fy, self.cx, self.cy, tuple(self.distortion)
+        )
 
     @property
     def K(self) -> F64:
@@ -36,6 +51,8 @@ class CameraCalib:
 
     @property
     def D(self) -> F64:
+        """The coefficients as OpenCV takes them (radial-tangential: `cv2.*`; equidistant:
+        `cv2.fisheye.*`)."""
         return np.array(self.distortion, dtype=np.float64)
 
     @property

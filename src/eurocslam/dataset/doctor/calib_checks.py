@@ -123,6 +123,22 @@ def check_camera(cam: CameraCalib) -> list[CalibIssue]:
                 "warning", "intrinsics", f"fx/fy = {cam.fx / cam.fy:.3f}: pixels far from square"
             )
         )
+    try:
+        model = cam.model
+    except ValueError as e:  # a model the coefficients do not fit
+        out.append(CalibIssue("error", "distortion_coefficients", str(e)))
+        return out
+    if model.perspective:
+        out += _perspective_issues(cam)
+    else:
+        out += _fisheye_issues(cam)
+    return out
+
+
+def _perspective_issues(cam: CameraCalib) -> list[CalibIssue]:
+    """Field of view and radial-tangential coefficients of a pinhole camera."""
+    out: list[CalibIssue] = []
+    w, h = cam.width, cam.height
     fov = float(np.degrees(2 * np.arctan(w / (2 * cam.fx))))
     if not 10.0 <= fov <= 170.0:
         out.append(
@@ -165,6 +181,44 @@ def check_camera(cam: CameraCalib) -> list[CalibIssue]:
                     f"normalised radius {fold:.2f}, inside the image (corners reach {r_max:.2f})",
                 )
             )
+    return out
+
+
+def _fisheye_issues(cam: CameraCalib) -> list[CalibIssue]:
+    """Field of view and coefficients of a fisheye (equidistant) camera: its polynomial must
+    keep growing out to the image's corners (`model.max_angle`)."""
+    out: list[CalibIssue] = []
+    w, h, m = cam.width, cam.height, cam.model
+    edges = np.array([[0.0, cam.cy], [w - 1.0, cam.cy]])
+    fov = float(np.degrees(np.nansum(m.angle_of(edges))))
+    if not 60.0 <= fov <= 270.0:
+        out.append(
+            CalibIssue(
+                "warning",
+                "intrinsics",
+                f"fx = {cam.fx:g} gives a {fov:.1f} deg horizontal field of view: implausible "
+                f"for a {cam.distortion_model} fisheye",
+            )
+        )
+    big = [f"k{i + 1}={k:g}" for i, k in enumerate(cam.distortion) if abs(k) > 1.0]
+    if big:
+        out.append(
+            CalibIssue(
+                "warning",
+                "distortion_coefficients",
+                f"{', '.join(big)} implausibly large for an equidistant (Kannala-Brandt) lens",
+            )
+        )
+    corners = np.array([[0, 0], [w, 0], [0, h], [w, h]], dtype=np.float64)
+    if not m.valid(corners).all():
+        out.append(
+            CalibIssue(
+                "warning",
+                "distortion_coefficients",
+                f"equidistant distortion folds back at {np.degrees(m.max_angle):.1f} deg from "
+                "the optical axis, inside the image (the corners have no ray)",
+            )
+        )
     return out
 
 
