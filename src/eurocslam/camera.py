@@ -64,8 +64,11 @@ RECTIFIED_TOL = 1e-9
 
 def is_rectified(rig: StereoRig) -> bool:
     """The rig is a rectified stereo pair already: identical pinhole intrinsics and resolution,
-    no distortion, the same orientation, cam1 beside cam0 along +x only."""
+    no distortion, the same orientation, cam1 beside cam0 along +x only. (A fisheye without
+    distortion coefficients is still a fisheye: not a pinhole.)"""
     c0, c1 = rig.cam0, rig.cam1
+    if not (c0.model.perspective and c1.model.perspective):
+        return False
     if any(d != 0.0 for d in (*c0.distortion, *c1.distortion)):
         return False
     if (c0.fx, c0.fy, c0.cx, c0.cy, c0.resolution) != (c1.fx, c1.fy, c1.cx, c1.cy, c1.resolution):

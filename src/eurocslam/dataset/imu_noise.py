@@ -16,7 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from eurocslam.dataset.calib import ImuCalib, StereoRig, check_imu, default_rig, load_sensor_yaml
+from eurocslam.dataset.calib import ImuCalib, StereoRig, default_rig, load_sensor_yaml
+from eurocslam.dataset.doctor.calib_checks import check_imu
 from eurocslam.errors import CalibrationError
 
 KEYS = (

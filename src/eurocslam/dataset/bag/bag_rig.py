@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from eurocslam.camera_models import canonical_model_name
 from eurocslam.dataset.bag.camera_info import (
     CameraInfo,
     check_camera_info,
@@ -34,15 +35,9 @@ from eurocslam.dataset.bag.camera_info import (
     stereo_baseline_from_P,
 )
 from eurocslam.dataset.bag.tf_tree import TfTree
-from eurocslam.dataset.calib import (
-    RATIONAL,
-    CameraCalib,
-    ImuCalib,
-    StereoRig,
-    check_camera,
-    check_stereo,
-)
 from eurocslam.dataset.calib_yaml import camera_yaml_text, imu_yaml_text
+from eurocslam.dataset.doctor.calib_checks import check_camera, check_stereo
+from eurocslam.dataset.rig import CameraCalib, ImuCalib, StereoRig
 from eurocslam.errors import CalibrationError
 from eurocslam.geometry import F64, inv_T, make_T, rotation_angle
 
@@ -106,7 +101,7 @@ def _calib(cam: BagCamera, info: CameraInfo, T_body_cam: F64, rectified: bool) -
         fx, fy, cx, cy = (float(info.K[0, 0]), float(info.K[1, 1]), float(info.K[0, 2]),
                           float(info.K[1, 2]))  # fmt: skip
         dist = info.D
-        model = {"none": "none", "plumb_bob": "radial-tangential"}.get(info.model, RATIONAL)
+        model = canonical_model_name(info.model) or info.model
     c = CameraCalib(
         name=cam.role,
         T_body_cam=T_body_cam,

@@ -9,15 +9,20 @@ from pathlib import Path
 
 import numpy as np
 
+from eurocslam.dataset.bag.bag_rig import BagCamera, rig_from_camera_infos
 from eurocslam.dataset.bag.files import mcap_sensor_yaml_texts
+from eurocslam.dataset.bag.static import BagStatic
+from eurocslam.dataset.bag.stats import ImageInfo
 from eurocslam.dataset.bag.topics import EUROC_VICON_TOPIC
 from eurocslam.dataset.calib import (
     ImuCalib,
     StereoRig,
+    default_rig,
     load_rig,
     load_sensor_yaml,
     rig_from_texts,
 )
+from eurocslam.dataset.imu_noise import ImuNoise, default_imu_noise, with_imu_noise
 from eurocslam.errors import CalibrationError, DatasetError
 from eurocslam.geometry import F64, make_T
 
@@ -51,8 +56,6 @@ def bag_calibration_name(path: Path, with_imu: bool) -> str:
 def imu_calibration(rate_hz: float) -> ImuCalib:
     """The IMU of a rig from a bag: the body frame itself, the measured rate; its noise figures
     come from outside the bag (`dataset/imu_noise.py`), EuRoC's until then."""
-    from eurocslam.dataset.imu_noise import default_imu_noise
-
     d = default_imu_noise()
     assert d.complete
     return ImuCalib(
@@ -113,3 +116,77 @@ def gt_sensor_extrinsic(calib_dir: Path | None, topic: str, notes: list[str]) ->
         return orthonormalize(EUROC_T_BODY_VICON)
     notes.append(f"{topic}: TransformStamped taken as the body pose (no vicon0 T_BS)")
     return np.eye(4)
+
+
+def rig_from_bag(
+    path: Path,
+    static: BagStatic,
+    cameras: dict[str, tuple[str, ImageInfo | None, float]],
+    imu: tuple[str, float] | None,
+    notes: list[str],
+) -> tuple[StereoRig, str]:
+    """The rig from the bag's CameraInfo and /tf_static (`bag_rig`) and its `calib_source`;
+    EuRoC's built in when the bag has no CameraInfo (the image size check then guards against
+    a foreign camera). `cameras`: cam0/cam1 -> (image topic, first image, measured rate);
+    `imu`: (the IMU topic whose frame is the body, its measured rate), None without one."""
+    have = [c for c in ("cam0", "cam1") if c in static.camera_infos]
+    if not have:
+        return default_rig(), BUILTIN
+    if len(have) == 1:
+        other = "cam1" if have[0] == "cam0" else "cam0"
+        raise CalibrationError(
+            f"{path}: {static.camera_infos[have[0]].topic} gives {have[0]}'s calibration "
+            f"but {cameras[other][0]} has no CameraInfo beside it (name it with "
+            f"--topic {other}_info=TOPIC, or pass --calib DIR)"
+        )
+    cams = []
+    for role in ("cam0", "cam1"):
+        topic, image, rate = cameras[role]
+        cams.append(
+            BagCamera(
+                role=role,
+                image_topic=topic,
+                frame_id=static.frame_ids.get(role, ""),
+                image_size=(image.width, image.height) if image is not None else None,
+                rate_hz=rate,
+                info=static.camera_infos[role],
+            )
+        )
+    imu_frame = None
+    imu_calib = None
+    if imu is not None:
+        topic, rate = imu
+        imu_frame = static.frame_ids.get("gyro", static.frame_ids.get("imu", ""))
+        if not imu_frame:
+            raise CalibrationError(
+                f"{path}: {topic}: the IMU messages have no header.frame_id, so the cameras "
+                "cannot be placed relative to the IMU (pass --calib DIR)"
+            )
+        imu_calib = imu_calibration(rate)
+    rig = rig_from_camera_infos(cams[0], cams[1], static.tf, imu_frame, imu_calib, notes)
+    return rig, bag_calibration_name(path, imu_frame is not None)
+
+
+def apply_imu_noise(
+    rig: StereoRig, noise: ImuNoise | None, from_bag: bool, calib_source: str, notes: list[str]
+) -> StereoRig:
+    """IMU noise figures from outside the bag (`--imu-calib`, the config's `imu:`) replace
+    the calibration's; a rig from the bag's CameraInfo takes EuRoC's for the ones not given,
+    with a note."""
+    if rig.imu is None:
+        return rig
+    given = noise if noise is not None else ImuNoise()
+    if from_bag and calib_source != BUILTIN:
+        if not given.complete:
+            which = "none given" if given.empty else "some not given"
+            notes.append(
+                f"IMU noise: the bag carries no figures ({which}): using "
+                f"{default_imu_noise().source} (give yours with --imu-calib imu.yaml or the "
+                "imu: section of --config)"
+            )
+        rig = with_imu_noise(rig, given.over(default_imu_noise()), calib_source)
+    elif not given.empty:
+        rig = with_imu_noise(rig, given, given.source)
+    if not given.empty:
+        notes.append(f"IMU noise figures from {given.source}")
+    return rig

@@ -1,10 +1,11 @@
 """`sensor_msgs/CameraInfo` as calibration (REP-104): reading a message (ROS 1 spells its
 fields `D K R P`, ROS 2 `d k r p`), checking it, and the camera it describes.
 
-Supported distortion models: `plumb_bob` (5 coefficients k1 k2 t1 t2 k3), `rational_polynomial`
-(8: k1 k2 t1 t2 k3 k4 k5 k6; depthai's 14 with the last six zero are read as 8), and no
-distortion (an empty `D`, or `D` all zeros, under any model name). `equidistant` and every other
-model are refused with a one-line error naming the topic.
+Supported distortion models: those of `eurocslam.camera_models` by their ROS names, with the
+number of coefficients ROS gives them: `plumb_bob` (5: k1 k2 t1 t2 k3), `rational_polynomial`
+(8: k1 k2 t1 t2 k3 k4 k5 k6; depthai's 14 with the last six zero are read as 8), `equidistant`
+(4: k1..k4, Kannala-Brandt); and no distortion (an empty `D`, or `D` all zeros, under any model
+name). Any other model, or another number of coefficients, is a one-line error naming the topic.
 
 A camera is *rectified* when its image topic says so (`image_rect`, `image_rect_raw`,
 `image_rect_color`: a driver rectified it, realsense's infra streams) or when its CameraInfo is
@@ -20,15 +21,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from eurocslam.camera_models import MODELS, canonical_model_name
 from eurocslam.errors import CalibrationError
 from eurocslam.geometry import F64
 
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
-# model -> number of coefficients; "none" has none
-COEFFICIENTS = {"plumb_bob": 5, "rational_polynomial": 8}
-REFUSED = {
-    "equidistant": "the equidistant (fisheye) model is not supported yet",
-}
+
+
+def ros_models() -> dict[str, tuple[str, int]]:
+    """ROS distortion model -> (our model name, the number of coefficients ROS gives it)."""
+    out = {}
+    for name, cls in MODELS.items():
+        if name == "none":
+            continue
+        zero = cls(1.0, 1.0, 0.0, 0.0, (0.0,) * min(n for n in cls.coeff_counts if n))
+        out[cls.ros_name] = (name, int(zero.ros_coeffs().size))
+    return out
+
+
 _RECT_TOPIC = re.compile(r"(^|/)image_rect(_raw|_color|_mono)?(/|$)")
 
 
@@ -48,12 +58,15 @@ class CameraInfo:
 
     @property
     def distortion_free(self) -> bool:
-        return not any(self.D)
+        """A plain pinhole: no coefficients, or all zero under a perspective model (a
+        zero-coefficient equidistant lens is still a fisheye)."""
+        canon = canonical_model_name(self.distortion_model)
+        return not any(self.D) and (canon is None or MODELS[canon].perspective)
 
     @property
     def model(self) -> str:
-        """`none`, `plumb_bob` or `rational_polynomial` (the checked model)."""
-        return "none" if self.distortion_free else self.distortion_model
+        """`none`, or the ROS model of the (checked) coefficients."""
+        return "none" if not self.D else self.distortion_model
 
     @property
     def Tx(self) -> float:
@@ -136,17 +149,17 @@ def check_camera_info(info: CameraInfo) -> CameraInfo:
         raise CalibrationError(f"{t}: CameraInfo R is not a rotation: {R.tolist()}")
     model = info.distortion_model
     D = info.D
-    if model in REFUSED:
-        raise CalibrationError(f"{t}: distortion model '{model}': {REFUSED[model]}")
-    if D and not any(D):
-        D = ()  # zeros under any model: no distortion
+    models = ros_models()
+    if D and not any(D) and models.get(model, ("", 0))[0] != "equidistant":
+        D = ()  # zeros under a pinhole model (or any name): no distortion
     if D:
-        n = COEFFICIENTS.get(model)
-        if n is None:
+        if model not in models:
+            known = ", ".join(f"{m} ({n} coefficients)" for m, (_, n) in sorted(models.items()))
             raise CalibrationError(
-                f"{t}: distortion model '{model}' is not supported (supported: plumb_bob with "
-                "5 coefficients, rational_polynomial with 8, or no distortion)"
+                f"{t}: distortion model '{model}' is not supported (supported: {known}, or no "
+                "distortion)"
             )
+        n = models[model][1]
         if len(D) > n and model == "rational_polynomial" and not any(D[n:]):
             D = D[:n]  # depthai's 14 coefficients, the thin-prism and tilt terms zero
         if len(D) != n:

@@ -9,25 +9,19 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-from eurocslam.dataset.bag.bag_rig import BagCamera, rig_from_camera_infos
+from eurocslam.dataset.bag.arrays import ArrayBuilder
 from eurocslam.dataset.bag.calibration import (
     BUILTIN,
-    bag_calibration_name,
-    gt_sensor_extrinsic,
-    imu_calibration,
+    apply_imu_noise,
     resolve_calibration,
+    rig_from_bag,
 )
-from eurocslam.dataset.bag.camera_info import CameraInfo, camera_info_from_msg
-from eurocslam.dataset.bag.discovery import camera_info_topic, discover_imu, discover_stereo
 from eurocslam.dataset.bag.files import bag_kind, is_bag_path, open_reader
-from eurocslam.dataset.bag.imu_union import unite_imu
 from eurocslam.dataset.bag.messages import (
     check_encoding,
     compressed_msg_to_mono,
@@ -38,100 +32,15 @@ from eurocslam.dataset.bag.messages import (
     stamp_of,
 )
 from eurocslam.dataset.bag.pairing import BagEntry, camera_map, join_cameras, snap_cam1
-from eurocslam.dataset.bag.tf_tree import TF_STATIC_TOPIC, TF_TYPE, TfTree, edges_from_tf_message
-from eurocslam.dataset.bag.topics import (
-    IMU_ROLES,
-    INFO_ROLES,
-    ROLE_TYPES,
-    ROLES,
-    TopicMap,
-)
+from eurocslam.dataset.bag.roles import choose_roles
+from eurocslam.dataset.bag.static import BagStatic, left_is_first, read_static, swap
+from eurocslam.dataset.bag.stats import ImageInfo, TopicStats, rate_hz
+from eurocslam.dataset.bag.topics import INFO_ROLES, ROLE_TYPES, TopicMap
 from eurocslam.dataset.calib import StereoRig, calib_folder
-from eurocslam.dataset.imu_noise import ImuNoise, with_imu_noise
-from eurocslam.dataset.types import (
-    I64,
-    U8,
-    GroundTruth,
-    ImuData,
-    PositionData,
-    SkipReport,
-    StereoFrame,
-    empty_imu,
-)
+from eurocslam.dataset.imu_noise import ImuNoise
+from eurocslam.dataset.types import I64, U8, SkipReport, StereoFrame, empty_imu
 from eurocslam.errors import CalibrationError, DatasetError
-from eurocslam.geometry import (
-    F64,
-    inv_T,
-    make_T,
-    normalize_quat,
-    quat_wxyz_to_rot,
-    rot_to_quat_wxyz,
-    xyzw_to_wxyz,
-)
-
-
-def _swap(d: dict[str, Any], k0: str, k1: str) -> None:
-    """Exchange two keys' values (either may be absent)."""
-    v0, v1 = d.pop(k0, None), d.pop(k1, None)
-    if v1 is not None:
-        d[k0] = v1
-    if v0 is not None:
-        d[k1] = v0
-
-
-def _rate_hz(stamps: I64) -> float:
-    """Rate of a stream from the median period of its sorted unique stamps (0: fewer than 2)."""
-    t = np.unique(np.asarray(stamps, dtype=np.int64))
-    if t.size < 2:
-        return 0.0
-    return round(1e9 / float(np.median(np.diff(t))), 3)
-
-
-@dataclass
-class TopicStats:
-    """Stamps of one role's topic in the order the bag stores them (log-time order)."""
-
-    role: str
-    topic: str
-    msgtype: str
-    header_ns: list[int] | I64 = field(default_factory=list)  # lists while scanning,
-    log_ns: list[int] | I64 = field(default_factory=list)  # int64 arrays after `freeze`
-
-    def freeze(self) -> None:
-        """Turn the stamp lists into int64 arrays (a quarter of the memory)."""
-        self.header_ns = np.asarray(self.header_ns, dtype=np.int64)
-        self.log_ns = np.asarray(self.log_ns, dtype=np.int64)
-
-    @property
-    def count(self) -> int:
-        return len(self.log_ns)
-
-    def header_array(self) -> I64:
-        return np.asarray(self.header_ns, dtype=np.int64)
-
-    def log_array(self) -> I64:
-        return np.asarray(self.log_ns, dtype=np.int64)
-
-    def unset_stamps(self) -> NDArray[np.bool_]:
-        """Messages whose header stamp is zero though they were logged later: the stamp was never
-        set (a stamp and log time both 0, as a sequence whose times start at 0 has, is real)."""
-        unset: NDArray[np.bool_] = (self.header_array() == 0) & (self.log_array() != 0)
-        return unset
-
-    @property
-    def zero_stamps(self) -> int:
-        return int(np.count_nonzero(self.unset_stamps()))
-
-
-@dataclass(frozen=True)
-class ImageInfo:
-    """What the first message of a camera topic says about its images."""
-
-    topic: str
-    msgtype: str
-    encoding: str  # Image encoding, or CompressedImage format
-    width: int
-    height: int
+from eurocslam.geometry import F64
 
 
 class BagSequence:
@@ -178,88 +87,34 @@ class BagSequence:
         self.ros2 = False
         self._conn_role: dict[int, str] = {}
         self._cam1_alias: dict[int, int] = {}  # cam1 stamp -> the cam0 stamp it pairs with
-        self._unordered_pair = False  # cam0/cam1 found by type, left/right not yet decided
-        # what the bag says about its calibration (read in `_static_pass`)
         self.info_topics: dict[str, str] = {}  # cam0_info / cam1_info -> topic
-        self.camera_infos: dict[str, CameraInfo] = {}  # cam0 / cam1 -> its first CameraInfo
-        self.frame_ids: dict[str, str] = {}  # cam0, cam1, imu, accel, gyro -> header.frame_id
-        self.tf = TfTree()
+        # what the bag says about its calibration: tf tree, CameraInfo, frame ids
+        self.static = BagStatic()
         explicit, self.calib_source = resolve_calibration(
             self.path, rig, self.calib_dir, self.notes
         )
         self.T_body_gtsensor: F64 = np.eye(4)
         self._scan(show_progress)
-        self.rig: StereoRig = explicit if explicit is not None else self._rig_from_bag()
-        self._apply_imu_noise(imu_noise, from_bag=explicit is None)
+        if explicit is None:
+            explicit, self.calib_source = self._rig_from_bag()
+        self.rig: StereoRig = apply_imu_noise(
+            explicit, imu_noise, self.calib_source.startswith("CameraInfo"), self.calib_source,
+            self.notes,
+        )  # fmt: skip
         self.stamp_source = self._choose_camera_stamps()
         self.frame_index = self._join_cameras()
         self._check_image_sizes()
 
     # ---- the index pass -------------------------------------------------------------------
     def _resolve_topics(self, reader: Any) -> dict[str, list[Any]]:
-        """Each role's connections: the user's topic, else the first default present, else found
-        by message type (`discovery`); CameraInfo beside each camera."""
+        """Each role's connections (`roles.choose_roles`), their message types checked."""
         available = {name: info for name, info in reader.topics.items()}
         self.bag_topics = {n: (str(i.msgtype), int(i.msgcount)) for n, i in available.items()}
-        types = {n: t for n, (t, _) in self.bag_topics.items()}
-        listing = ", ".join(f"{n} ({t}, {c})" for n, (t, c) in sorted(self.bag_topics.items()))
-        where = str(self.path)
-        chosen: dict[str, str] = {}
-        for role in ROLES:
-            cands = self.topic_map.candidates(role)
-            found = next((t for t in cands if t in available), None)
-            if found is not None:
-                chosen[role] = found
-            elif role in self.topic_map.explicit:
-                raise DatasetError(
-                    f"{self.path}: no topic for {role} (looked for {', '.join(cands)}; map "
-                    f"one with --topic {role}=TOPIC). The bag has: {listing or 'no topics'}"
-                )
-        if "cam0" not in chosen or "cam1" not in chosen:
-            missing = "cam0" if "cam0" not in chosen else "cam1"
-            try:
-                pair = discover_stereo(types, chosen.get("cam0"), chosen.get("cam1"), where)
-            except DatasetError as e:
-                reason = str(e).removeprefix(f"{where}: ")
-                raise DatasetError(
-                    f"{self.path}: no topic for {missing} (looked for "
-                    f"{', '.join(self.topic_map.candidates(missing))}, then by message type: "
-                    f"{reason}; or --topic {missing}=TOPIC). The bag has: "
-                    f"{listing or 'no topics'}"
-                ) from None
-            chosen["cam0"], chosen["cam1"] = pair.left, pair.right
-            self._unordered_pair = not pair.ordered
-            if pair.ordered:
-                self.notes.append(
-                    f"stereo pair found by {pair.how}: left {pair.left}, right {pair.right}"
-                )
-        if not any(r in chosen for r in IMU_ROLES):
-            found_imu = discover_imu(types, where)
-            for role in IMU_ROLES:
-                t = getattr(found_imu, role)
-                if t is not None:
-                    chosen[role] = t
-            if found_imu.how:
-                picked = ", ".join(f"{r} {chosen[r]}" for r in IMU_ROLES if r in chosen)
-                self.notes.append(f"IMU found by message type ({found_imu.how}): {picked}")
-        if "imu" in chosen and ("accel" in chosen or "gyro" in chosen):
-            raise DatasetError(
-                f"{self.path}: an IMU topic ({chosen['imu']}) and separate accel/gyro topics "
-                "were both given; use one or the other"
-            )
-        if ("accel" in chosen) != ("gyro" in chosen):
-            have, need = ("accel", "gyro") if "accel" in chosen else ("gyro", "accel")
-            raise DatasetError(
-                f"{self.path}: {have} topic {chosen[have]} without a {need} topic (add "
-                f"--topic {need}=TOPIC)"
-            )
-        for cam, info_role in INFO_ROLES.items():
-            if info_role not in chosen:
-                t = camera_info_topic(chosen[cam], types)
-                if t is not None:
-                    chosen[info_role] = t
+        choice = choose_roles(self.bag_topics, self.topic_map, str(self.path))
+        self.notes.extend(choice.notes)
+        self._unordered_pair = choice.unordered
         out: dict[str, list[Any]] = {}
-        for role, found in chosen.items():
+        for role, found in choice.topics.items():
             conns = list(available[found].connections)
             bad = sorted({c.msgtype for c in conns} - set(ROLE_TYPES[role]))
             if bad:
@@ -267,73 +122,42 @@ class BagSequence:
                     f"{self.path}: topic {found} ({role}) has message type {', '.join(bad)}; "
                     f"expected {' or '.join(ROLE_TYPES[role])}"
                 )
+            out[role] = conns
             if role in INFO_ROLES.values():
                 self.info_topics[role] = found
-            out[role] = conns
-            if role not in INFO_ROLES.values():
+            else:
                 self.stats[role] = TopicStats(role, found, conns[0].msgtype)
-        if chosen["cam0"] == chosen["cam1"]:
-            raise DatasetError(f"{self.path}: cam0 and cam1 both map to {chosen['cam0']}")
         return out
 
-    def _first_message(self, reader: Any, conns: list[Any]) -> Any | None:
-        for conn, log_ns, raw in reader.messages(connections=conns):
-            return self._deserialize(reader, raw, conn, log_ns)
-        return None
-
-    def _static_pass(self, reader: Any, role_conns: dict[str, list[Any]]) -> None:
-        """What the bag says about its calibration, read before the index pass: every
-        `/tf_static` message, the first CameraInfo of each camera, and the `header.frame_id` of
-        the first camera and IMU messages; then cam0/cam1 put in order if discovery could not."""
-        tf_conns = [c for c in reader.connections if c.topic == TF_STATIC_TOPIC]
-        tf_conns = [c for c in tf_conns if c.msgtype == TF_TYPE]
-        if tf_conns:
-            for conn, log_ns, raw in reader.messages(connections=tf_conns):
-                msg = self._deserialize(reader, raw, conn, log_ns)
-                for edge in edges_from_tf_message(msg, TF_STATIC_TOPIC):
-                    self.tf.add(edge)
-        for cam, info_role in INFO_ROLES.items():
-            if info_role in role_conns:
-                msg = self._first_message(reader, role_conns[info_role])
-                if msg is not None:
-                    self.camera_infos[cam] = camera_info_from_msg(msg, self.info_topics[info_role])
-        for role in ("cam0", "cam1", *IMU_ROLES):
-            if role in role_conns:
-                msg = self._first_message(reader, role_conns[role])
-                if msg is not None:
-                    self.frame_ids[role] = str(msg.header.frame_id).strip().lstrip("/")
-        if self._unordered_pair:
-            self._order_pair(role_conns)
-
-    def _order_pair(self, role_conns: dict[str, list[Any]]) -> None:
-        """cam0 is the left camera: decided by the tf tree (cam1 at +x in cam0's optical
-        frame), else by the CameraInfo P (the right camera's P[0, 3] is negative)."""
+    def _read_static(self, reader: Any, role_conns: dict[str, list[Any]]) -> None:
+        """The tf tree, CameraInfo and frame ids (`static`); left and right put in order when
+        the pair was found by type alone."""
+        topics = {**{r: st.topic for r, st in self.stats.items()}, **self.info_topics}
+        self.static = read_static(
+            reader, role_conns, topics, lambda raw, c, t: self._deserialize(reader, raw, c, t)
+        )
+        if not self._unordered_pair:
+            return
         a, b = self.stats["cam0"].topic, self.stats["cam1"].topic
-        fa, fb = self.frame_ids.get("cam0", ""), self.frame_ids.get("cam1", "")
-        x: float | None = None
-        how = ""
-        if fa and fb and fa != fb and self.tf.connected(fa, fb):
-            x = float(self.tf.lookup(fa, fb)[0, 3])  # b's origin in a's frame
-            how = "the /tf_static baseline"
-        elif "cam0" in self.camera_infos and "cam1" in self.camera_infos:
-            x = self.camera_infos["cam0"].Tx - self.camera_infos["cam1"].Tx
-            how = "the CameraInfo P[0, 3]"
-        if not x:
-            raise DatasetError(
-                f"{self.path}: cannot tell the left camera from the right between {a} and {b} "
-                "(no tf baseline, no P[0, 3]); name them with --topic left=TOPIC "
-                "--topic right=TOPIC"
-            )
-        if x < 0:  # b is on the left: swap the roles
-            _swap(self.stats, "cam0", "cam1")
-            _swap(self.frame_ids, "cam0", "cam1")
-            _swap(self.camera_infos, "cam0", "cam1")
-            _swap(role_conns, "cam0", "cam1")
-            _swap(self.info_topics, "cam0_info", "cam1_info")
+        first_is_left, how = left_is_first(self.static, a, b, str(self.path))
+        if not first_is_left:
+            swap(self.stats, "cam0", "cam1")
+            swap(role_conns, "cam0", "cam1")
+            swap(self.info_topics, "cam0_info", "cam1_info")
+            self.static.swap_cameras()
             for role in ("cam0", "cam1"):
                 self.stats[role].role = role
             a, b = b, a
         self.notes.append(f"stereo pair: left {a}, right {b} (decided by {how})")
+
+    def _rig_from_bag(self) -> tuple[StereoRig, str]:
+        cams = {
+            r: (self.stats[r].topic, self.image_info.get(r), rate_hz(self.stats[r].header_array()))
+            for r in ("cam0", "cam1")
+        }
+        role = "gyro" if "gyro" in self.stats else "imu"
+        imu = (self.stats[role].topic, rate_hz(self.imu.t_ns)) if len(self.imu) else None
+        return rig_from_bag(self.path, self.static, cams, imu, self.notes)
 
     def _scan(self, show_progress: bool | None) -> None:
         from eurocslam.progress import bar
@@ -343,7 +167,7 @@ class BagSequence:
         gt_t: list[int] = []
         gt_v: list[tuple[float, ...]] = []
         le_t: list[int] = []
-        le_v: list[tuple[float, float, float]] = []
+        le_v: list[tuple[float, ...]] = []
         ac_t: list[int] = []
         ac_v: list[tuple[float, ...]] = []
         gy_t: list[int] = []
@@ -351,7 +175,7 @@ class BagSequence:
         with open_reader(self.path) as reader:
             self.ros2 = bool(reader.is2)
             role_conns = self._resolve_topics(reader)
-            self._static_pass(reader, role_conns)
+            self._read_static(reader, role_conns)
             for info_role in INFO_ROLES.values():  # CameraInfo is read once, not indexed
                 role_conns.pop(info_role, None)
             self._conn_role = {id(c): r for r, cs in role_conns.items() for c in cs}
@@ -389,17 +213,25 @@ class BagSequence:
                         gt_v.append(vals)
                     else:
                         le_t.append(stamp)
-                        le_v.append(vals)  # type: ignore[arg-type]
+                        le_v.append(vals)
             finally:
                 pb.close()
         for st in self.stats.values():
             st.freeze()
+        arrays = ArrayBuilder(self.path, self.stats, self.notes, self.skips)
         if "accel" in self.stats:
-            self.imu = self._unite_imu(ac_t, ac_v, gy_t, gy_v)
-        else:
-            self.imu = self._build_imu(imu_t, imu_v)
-        self.groundtruth = self._build_groundtruth(gt_t, gt_v)
-        self.leica = self._build_leica(le_t, le_v)
+            frames, tf = self.static.frame_ids, self.static.tf
+            self.imu = arrays.united_imu((ac_t, ac_v), (gy_t, gy_v), frames, tf)
+        elif "imu" in self.stats:
+            self.imu = arrays.imu(imu_t, imu_v)
+        else:  # no IMU topic: a stereo-only input
+            cands = ", ".join(self.topic_map.candidates("imu"))
+            self.notes.append(
+                f"no IMU topic (looked for {cands}): a stereo-only input, runs visual-only"
+            )
+            self.imu = empty_imu()
+        self.groundtruth, self.T_body_gtsensor = arrays.groundtruth(gt_t, gt_v, self.calib_dir)
+        self.leica = arrays.leica(le_t, le_v)
 
     def _values(
         self, reader: Any, conn: Any, raw: bytes | memoryview, log_ns: int, fast: dict[int, bool]
@@ -459,212 +291,6 @@ class BagSequence:
             info = ImageInfo(conn.topic, conn.msgtype, str(msg.encoding), int(msg.width),
                              int(msg.height))  # fmt: skip
         self.image_info[role] = info
-
-    # ---- arrays ---------------------------------------------------------------------------
-    def _stamps(self, role: str, header: list[int]) -> I64:
-        """Header stamps, or the log times when any header stamp is unset (zero; with a note)."""
-        st = self.stats[role]
-        h = np.asarray(header, dtype=np.int64)
-        unset = (h == 0) & (st.log_array() != 0)
-        if h.size and np.any(unset):
-            self.notes.append(
-                f"{st.topic}: {int(np.count_nonzero(unset))} of {h.size} messages have a zero "
-                "header stamp; using the bag's log time for this topic"
-            )
-            return st.log_array()
-        return h
-
-    def _sorted_unique(self, t: I64, role: str) -> I64:
-        topic = self.stats[role].topic
-        if t.size and np.any(np.diff(t) < 0):
-            self.skips.add("out-of-order timestamps (sorted)", topic)
-        order = np.argsort(t, kind="stable")
-        ts = t[order]
-        keep = np.ones(ts.size, dtype=bool)
-        keep[1:] = ts[1:] != ts[:-1]
-        for i in np.flatnonzero(~keep)[:1000]:
-            self.skips.add(f"duplicate {role} timestamp (dropped)", f"{topic}: {ts[i]}")
-        return order[keep]
-
-    def _build_imu(self, t: list[int], v: list[tuple[float, ...]]) -> ImuData:
-        if "imu" not in self.stats:  # no IMU topic: a stereo-only input
-            cands = ", ".join(self.topic_map.candidates("imu"))
-            self.notes.append(
-                f"no IMU topic (looked for {cands}): a stereo-only input, runs visual-only"
-            )
-            return empty_imu()
-        topic = self.stats["imu"].topic
-        if not t:
-            raise DatasetError(f"{self.path}: {topic}: no IMU messages")
-        ts = self._stamps("imu", t)
-        vals = np.asarray(v, dtype=np.float64)
-        if not np.all(np.isfinite(vals)):
-            bad = int(np.flatnonzero(~np.all(np.isfinite(vals), axis=1))[0])
-            raise DatasetError(f"{self.path}: {topic}: non-finite IMU value at stamp {ts[bad]}")
-        idx = self._sorted_unique(ts, "imu")
-        vals = vals[idx]
-        return ImuData(
-            ts[idx], np.ascontiguousarray(vals[:, :3]), np.ascontiguousarray(vals[:, 3:])
-        )
-
-    def _unite_imu(
-        self,
-        ac_t: list[int],
-        ac_v: list[tuple[float, ...]],
-        gy_t: list[int],
-        gy_v: list[tuple[float, ...]],
-    ) -> ImuData:
-        """Separate accelerometer and gyroscope streams united on the gyro stamps
-        (`imu_union`); the accelerometer rotated into the gyro's frame when the tf tree
-        relates two different frames."""
-        streams = {}
-        for role, t, v, cols in (("accel", ac_t, ac_v, slice(3, 6)), ("gyro", gy_t, gy_v,
-                                                                      slice(0, 3))):  # fmt: skip
-            topic = self.stats[role].topic
-            if not t:
-                raise DatasetError(f"{self.path}: {topic}: no IMU messages")
-            ts = self._stamps(role, t)
-            vals = np.asarray(v, dtype=np.float64)[:, cols]
-            if not np.all(np.isfinite(vals)):
-                bad = int(np.flatnonzero(~np.all(np.isfinite(vals), axis=1))[0])
-                raise DatasetError(f"{self.path}: {topic}: non-finite IMU value at stamp {ts[bad]}")
-            idx = self._sorted_unique(ts, role)
-            streams[role] = (ts[idx], vals[idx])
-        fa, fg = self.frame_ids.get("accel", ""), self.frame_ids.get("gyro", "")
-        R_gyro_accel = None
-        if fa and fg and fa != fg:
-            if self.tf.connected(fg, fa):
-                T = self.tf.lookup(fg, fa)
-                if not np.allclose(T[:3, :3], np.eye(3), atol=1e-12):
-                    R_gyro_accel = T[:3, :3]
-                if float(np.linalg.norm(T[:3, 3])) > 0.01:
-                    self.notes.append(
-                        f"accelerometer frame '{fa}' is {np.linalg.norm(T[:3, 3]) * 100:.1f} cm "
-                        f"from the gyro's '{fg}': the lever arm is ignored"
-                    )
-            else:
-                self.notes.append(
-                    f"accelerometer frame '{fa}' and gyro frame '{fg}' are not related in "
-                    "/tf_static: taken as aligned"
-                )
-        united = unite_imu(*streams["accel"], *streams["gyro"], R_gyro_accel=R_gyro_accel)
-        a_t, g_t = streams["accel"][0], streams["gyro"][0]
-        self.notes.append(
-            f"IMU united from {self.stats['accel'].topic} ({_rate_hz(a_t):.1f} Hz) and "
-            f"{self.stats['gyro'].topic} ({_rate_hz(g_t):.1f} Hz): the accelerometer linearly "
-            f"interpolated onto the gyro's {len(united.imu)} stamps"
-            + (f" ({united.dropped} gyro samples outside the accelerometer's span dropped)"
-               if united.dropped else "")
-        )  # fmt: skip
-        if len(united.imu) == 0:
-            raise DatasetError(
-                f"{self.path}: {self.stats['accel'].topic} and {self.stats['gyro'].topic} do "
-                "not overlap in time"
-            )
-        return united.imu
-
-    def _rig_from_bag(self) -> StereoRig:
-        """The rig from the bag's CameraInfo and /tf_static; EuRoC's built in when the bag
-        has no CameraInfo (the image size check then guards against a foreign camera)."""
-        have = [c for c in ("cam0", "cam1") if c in self.camera_infos]
-        if not have:
-            self.calib_source = BUILTIN
-            from eurocslam.dataset.calib import default_rig
-
-            return default_rig()
-        if len(have) == 1:
-            other = "cam1" if have[0] == "cam0" else "cam0"
-            raise CalibrationError(
-                f"{self.path}: {self.camera_infos[have[0]].topic} gives {have[0]}'s calibration "
-                f"but {self.stats[other].topic} has no CameraInfo beside it (name it with "
-                f"--topic {other}_info=TOPIC, or pass --calib DIR)"
-            )
-        cams = []
-        for role in ("cam0", "cam1"):
-            info = self.image_info.get(role)
-            cams.append(
-                BagCamera(
-                    role=role,
-                    image_topic=self.stats[role].topic,
-                    frame_id=self.frame_ids.get(role, ""),
-                    image_size=(info.width, info.height) if info is not None else None,
-                    rate_hz=_rate_hz(self.stats[role].header_array()),
-                    info=self.camera_infos[role],
-                )
-            )
-        imu_role = "gyro" if "gyro" in self.stats else "imu"
-        imu_frame = None
-        imu = None
-        if imu_role in self.stats and len(self.imu):
-            imu_frame = self.frame_ids.get(imu_role, "")
-            if not imu_frame:
-                raise CalibrationError(
-                    f"{self.path}: {self.stats[imu_role].topic}: the IMU messages have no "
-                    "header.frame_id, so the cameras cannot be placed relative to the IMU "
-                    "(pass --calib DIR)"
-                )
-            imu = imu_calibration(_rate_hz(self.imu.t_ns))
-        rig = rig_from_camera_infos(cams[0], cams[1], self.tf, imu_frame, imu, self.notes)
-        self.calib_source = bag_calibration_name(self.path, imu_frame is not None)
-        return rig
-
-    def _apply_imu_noise(self, noise: ImuNoise | None, from_bag: bool) -> None:
-        """IMU noise figures from outside the bag (`--imu-calib`, the config's `imu:`) replace
-        the calibration's; a rig from the bag's CameraInfo takes EuRoC's for the ones not
-        given, with a note."""
-        if self.rig.imu is None:
-            return
-        from eurocslam.dataset.imu_noise import default_imu_noise
-
-        given = noise if noise is not None else ImuNoise()
-        if from_bag and self.calib_source != BUILTIN:
-            if not given.complete:
-                which = "none given" if given.empty else "some not given"
-                self.notes.append(
-                    f"IMU noise: the bag carries no figures ({which}): using "
-                    f"{default_imu_noise().source} (give yours with --imu-calib imu.yaml or "
-                    "the imu: section of --config)"
-                )
-            self.rig = with_imu_noise(self.rig, given.over(default_imu_noise()), self.calib_source)
-        elif not given.empty:
-            self.rig = with_imu_noise(self.rig, given, given.source)
-        if not given.empty:
-            self.notes.append(f"IMU noise figures from {given.source}")
-
-    def _build_groundtruth(self, t: list[int], v: list[tuple[float, ...]]) -> GroundTruth | None:
-        if "groundtruth" not in self.stats or not t:
-            return None
-        st = self.stats["groundtruth"]
-        ts = self._stamps("groundtruth", t)
-        vals = np.asarray(v, dtype=np.float64)
-        idx = self._sorted_unique(ts, "groundtruth")
-        ts, vals = ts[idx], vals[idx]
-        p = vals[:, :3]
-        try:
-            q_wxyz = normalize_quat(xyzw_to_wxyz(vals[:, 3:7]))
-        except ValueError:
-            bad = int(np.argmin(np.linalg.norm(vals[:, 3:7], axis=1)))
-            raise DatasetError(
-                f"{self.path}: {st.topic}: zero quaternion at stamp {ts[bad]}"
-            ) from None
-        if st.msgtype.endswith("/TransformStamped"):
-            self.T_body_gtsensor = gt_sensor_extrinsic(self.calib_dir, st.topic, self.notes)
-            if not np.allclose(self.T_body_gtsensor, np.eye(4)):
-                # T_gtworld_body = T_gtworld_sensor @ inv(T_body_sensor)
-                T = make_T(quat_wxyz_to_rot(q_wxyz), p) @ inv_T(self.T_body_gtsensor)
-                p = T[:, :3, 3].copy()
-                q_wxyz = rot_to_quat_wxyz(T[:, :3, :3])
-        return GroundTruth(t_ns=ts, p=np.ascontiguousarray(p), q_wxyz=q_wxyz)
-
-    def _build_leica(
-        self, t: list[int], v: list[tuple[float, float, float]]
-    ) -> PositionData | None:
-        if "leica" not in self.stats or not t:
-            return None
-        ts = self._stamps("leica", t)
-        vals = np.asarray(v, dtype=np.float64)
-        idx = self._sorted_unique(ts, "leica")
-        return PositionData(ts[idx], vals[idx].copy())
 
     # ---- cameras --------------------------------------------------------------------------
     def _choose_camera_stamps(self) -> str:

@@ -44,7 +44,7 @@ import numpy as np
 
 from eurocslam.camera import rectify_stereo
 from eurocslam.dataset.bag.writer import BAG_FORMATS
-from eurocslam.dataset.calib import RATIONAL, StereoRig
+from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.split_imu import SplitImu
 from eurocslam.dataset.types import U8
 from eurocslam.errors import DatasetError
@@ -115,16 +115,14 @@ def _published_calibration(rig: StereoRig, opt: RealsenseBagOptions) -> _Calib:
     rect = rectify_stereo(rig, opt.rect_alpha)
     c0, c1 = rig.cam0, rig.cam1
     if opt.images == "raw":
-        n = max(5, len(c0.distortion), len(c1.distortion))
-        model = RATIONAL if n == 8 else "plumb_bob"
-
-        def dist(c: Any) -> F64:
-            d = np.zeros(n)
-            d[: len(c.distortion)] = c.distortion
-            return d
-
+        model = c0.model.ros_name
+        if c1.model.ros_name != model or not c0.model.perspective:
+            raise DatasetError(
+                f"realsense bag: raw images need both cameras in one pinhole model, not "
+                f"{c0.distortion_model} and {c1.distortion_model}"
+            )
         return _Calib(
-            (c0.K, c1.K), (dist(c0), dist(c1)), model,
+            (c0.K, c1.K), (c0.model.ros_coeffs(), c1.model.ros_coeffs()), model,
             (rect.R_rect0_cam0, rect.R_rect1_cam1), (rect.P0, rect.P1),
             (c0.T_body_cam, c1.T_body_cam), None,
         )  # fmt: skip

@@ -14,16 +14,18 @@ import numpy as np
 
 from eurocslam.dataset.asl import AslSequence, resolve_mav0
 from eurocslam.dataset.calib import (
-    CalibIssue,
     CameraCalib,
     _matrix4,
     camera_from_yaml,
+    imu_from_yaml,
+    load_sensor_yaml,
+)
+from eurocslam.dataset.doctor.calib_checks import (
+    CalibIssue,
     check_camera,
     check_imu,
     check_stereo_pair,
     check_transform,
-    imu_from_yaml,
-    load_sensor_yaml,
 )
 from eurocslam.dataset.doctor.csv_scan import GT, STREAMS, ScannedCsv, scan_csv
 from eurocslam.dataset.doctor.image_checks import ImageState, check_images

@@ -162,11 +162,11 @@ def _calibration_lines(seq: BagSequence) -> list[str]:
     out = []
     rig = seq.rig
     for role in ("cam0", "cam1"):
-        info = seq.camera_infos.get(role)
+        info = seq.static.camera_infos.get(role)
         cam = getattr(rig, role)
         if info is None:
             continue
-        frame = seq.frame_ids.get(role) or info.frame_id or "(no frame_id)"
+        frame = seq.static.frame_ids.get(role) or info.frame_id or "(no frame_id)"
         p = cam.T_body_cam[:3, 3]
         if not seq.calib_source.startswith("CameraInfo"):
             out.append(f"{role}: {info.topic} present, not used (calibration from elsewhere)")
@@ -178,10 +178,10 @@ def _calibration_lines(seq: BagSequence) -> list[str]:
             f"'{info.distortion_model or 'none'}' ({len(info.D)} coefficients), {how}, frame "
             f"'{frame}', at ({p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}) m in the body frame"
         )
-    if seq.camera_infos:
+    if seq.static.camera_infos:
         out.append(f"stereo baseline {rig.baseline:.4f} m")
-    if len(seq.tf):
-        out.append(f"/tf_static: {len(seq.tf.frames)} frames")
+    if len(seq.static.tf):
+        out.append(f"/tf_static: {len(seq.static.tf.frames)} frames")
     return out
 
 
