@@ -64,7 +64,8 @@ def unite_imu(
         j = np.clip(np.searchsorted(ta, t_out, side="right") - 1, 0, ta.size - 2)
         # weights from integer nanosecond differences (exact before the one division)
         w = (t_out - ta[j]).astype(np.float64) / (ta[j + 1] - ta[j]).astype(np.float64)
-        a_out = a[j] + w[:, None] * (a[j + 1] - a[j])
+        # (1 - w) a_j + w a_j+1: exactly a sample's value on a shared stamp (w = 0 or 1)
+        a_out = (1.0 - w)[:, None] * a[j] + w[:, None] * a[j + 1]
     return UnitedImu(
         ImuData(t_out.copy(), np.ascontiguousarray(g_out), np.ascontiguousarray(a_out)),
         lo,

@@ -66,7 +66,9 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
         if st is None:
             if role in IMU_ROLES:  # stereo-only, or the other IMU form: the notes say which
                 continue
-            level = INFO if role == "leica" else WARNING
+            # a robot's bag (calibrated by its CameraInfo) has no ground truth as a rule
+            robot = seq.calib_source.startswith("CameraInfo")
+            level = INFO if role == "leica" or robot else WARNING
             add(level, f"{role}: no topic (looked for {', '.join(seq.topic_map.candidates(role))})")
             continue
         lt = st.log_array()
