@@ -11,7 +11,7 @@ from eurocslam.dataset.asl import AslSequence
 from eurocslam.dataset.bag.files import is_bag_path
 from eurocslam.dataset.bag.reader import BagSequence
 from eurocslam.dataset.bag.topics import TopicMap
-from eurocslam.dataset.calib import StereoRig, load_rig
+from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.kitti import KittiSequence
 from eurocslam.dataset.kitti_files import is_kitti_root, is_kitti_sequence
 from eurocslam.errors import DatasetError
@@ -31,9 +31,10 @@ def open_sequence(
     folder (`sequences/NN`), a ROS 1 `.bag`, a ROS 2 bag folder (`metadata.yaml`), a `.db3` or an
     `.mcap` (including `eurocslam convert` output).
 
-    `rig` wins over `calib` (a folder of cam0/cam1/imu0 `sensor.yaml` files); `topics` maps bag
-    topics to roles (`{"cam0": "/my/left"}`, bags only). Notes (calibration fallback, stamp
-    source) are logged (INFO) unless `quiet`; they stay in the source's `notes`.
+    `rig` wins over `calib` (a folder of cam0/cam1/imu0 `sensor.yaml` files; for an ASL folder
+    also a Kalibr camchain.yaml or a folder holding one); `topics` maps bag topics to roles
+    (`{"cam0": "/my/left"}`, bags only). Notes (calibration source and fallbacks, stamp source)
+    are logged (INFO) unless `quiet`; they stay in the source's `notes`.
     """
     p = Path(path)
     if is_bag_path(p):
@@ -53,6 +54,8 @@ def open_sequence(
         if rig is not None or calib is not None:
             raise DatasetError(f"{p}: a KITTI sequence carries its calibration (calib.txt)")
         return KittiSequence(p)
-    if rig is None and calib is not None:
-        rig = load_rig(Path(calib))
-    return AslSequence(path, rig)
+    asl = AslSequence(path, rig, calib=calib)
+    if not quiet:
+        for note in asl.notes:
+            logger.info("note: %s", note)
+    return asl
