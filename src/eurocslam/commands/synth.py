@@ -23,7 +23,7 @@ _SWITCHES = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from eurocslam.synth.spec import SynthSpec
+    from eurocslam.synth.spec import RIGS, SynthSpec
 
     d = SynthSpec()
     p.add_argument("out", type=Path, metavar="OUT", help="output sequence folder (gets mav0/)")
@@ -80,6 +80,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=None,
         metavar="FOLDER",
         help="folder with cam0/cam1/imu0 sensor.yaml (default: EuRoC's, built in)",
+    )
+    p.add_argument(
+        "--rig",
+        choices=RIGS,
+        default="euroc",
+        help="euroc: EuRoC's cameras and IMU (or --calib's), an EuRoC ASL folder; tumvi: "
+        "TUM-VI's 512x512 stereo fisheye (equidistant, ~0.10 m baseline) and IMU, 20 Hz "
+        "images, 200 Hz IMU, written as a TUM-VI folder (dso/camchain.yaml, mav0/mocap0); "
+        "with --trajectory its cam0 flies where EuRoC's cam0 does (default: euroc)",
     )
     for flag, field, text in _SWITCHES:
         default = getattr(d, field)
@@ -139,6 +148,7 @@ def spec_from_args(args: argparse.Namespace):  # -> SynthSpec
         start_s=args.start,
         end_s=args.end,
         calib=args.calib,
+        rig=args.rig,
         blackout=blackout,
         world_from=tuple(args.world_from) if args.world_from else None,
         **{field: getattr(args, field) for _, field, _ in _SWITCHES},

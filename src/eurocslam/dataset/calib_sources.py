@@ -198,6 +198,12 @@ def load_calibration(calib: Path, mav0: Path | None = None) -> Calibration:
     return load_source(source_of(calib), measured_rates(mav0))
 
 
+def tumvi_kalibr_texts() -> dict[str, str]:
+    """TUM-VI's dso/camchain.yaml and dso/imu_config.yaml texts, as shipped in the package."""
+    base = resources.files("eurocslam") / "data" / "tumvi_calib"
+    return {n: (base / n).read_text() for n in ("camchain.yaml", "imu_config.yaml")}
+
+
 @functools.cache
 def tumvi_rig() -> StereoRig:
     """TUM-VI's 512x512 stereo fisheye + IMU (its public dso/camchain.yaml and imu_config.yaml,

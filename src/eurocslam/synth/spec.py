@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from eurocslam.geometry import F64
 
 DEFAULT_DURATION_S = 30.0
+RIGS = ("euroc", "tumvi")  # SynthSpec.rig
 TINY_DURATION_S = 2.0
 
 
@@ -39,6 +40,13 @@ class SynthSpec:
     those rows measured (high frequency) on the ground truth (low frequency), in a world turned
     onto the accelerometer's gravity (`fusion.py`; `knot_dt_s` is unused). `calib`: a folder
     with cam0/cam1/imu0 sensor.yaml (default: EuRoC's, shipped in the package).
+
+    `rig`: "euroc" (EuRoC's cameras and IMU, or `calib`'s; an EuRoC ASL folder) or "tumvi"
+    (TUM-VI's 512x512 stereo fisheye and IMU, shipped in the package; written as a TUM-VI folder
+    as distributed: `dso/camchain.yaml`, `dso/imu_config.yaml`, `mav0/mocap0`). With another rig
+    than EuRoC's the motion is re-expressed so that its cam0 flies where EuRoC's cam0 flies in the
+    same motion (the IMU then sits where that rig puts it), in the same world: a rig is compared
+    with EuRoC's on the same views.
     """
 
     duration_s: float | None = None
@@ -65,6 +73,7 @@ class SynthSpec:
     # alone: every sequence rendered with the same files and seed flies through the same world
     # (`shared_world.py`)
     world_from: tuple[Path, ...] | None = None
+    rig: str = "euroc"  # RIGS
 
     @classmethod
     def tiny(cls, seed: int = 0, **kw: Any) -> SynthSpec:
@@ -93,6 +102,8 @@ class SynthSpec:
             del d["blackout"]  # the specs made before it existed keep their identity
         else:
             d["blackout"] = list(d["blackout"])
+        if d["rig"] == "euroc":
+            del d["rig"]  # (likewise)
         if d["world_from"] is None:
             del d["world_from"]  # (likewise)
         else:
