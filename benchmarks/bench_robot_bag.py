@@ -16,6 +16,8 @@ rates; without rates: the folder's accel0/gyro0 streams if it has them, else its
 
 usage: .venv/bin/python benchmarks/bench_robot_bag.py ASL [--seconds 20] [--work DIR]
        [--variant NAME=SPEC ...] [--json OUT.json]
+Runs the code of the checkout the script is in (its src/ first on PYTHONPATH): to measure a
+commit while editing, run the script from a `git worktree` of that commit.
 """
 
 from __future__ import annotations
@@ -36,7 +38,10 @@ from typing import Any
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-EXE = REPO / ".venv" / "bin" / "eurocslam"
+# the CLI of this checkout's src (a worktree of another revision runs its own code)
+EXE = [sys.executable, "-m", "eurocslam.cli"]
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"),
+                                                    os.environ.get("PYTHONPATH", "")])}  # fmt: skip
 DEFAULT_VARIANTS = [
     "ros1_raw_united=ros1:raw:united",
     "db3_raw_split=ros2-db3:raw:split",
@@ -49,9 +54,9 @@ DEFAULT_VARIANTS = [
 def run(src: Path, out: Path, end_ns: int, imu_calib: Path) -> float:
     """`eurocslam run` in a subprocess; returns its CPU seconds."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cmd = [str(EXE), "run", str(src), "-o", str(out), "--no-mcap", "--no-progress",
+    cmd = [*EXE, "run", str(src), "-o", str(out), "--no-mcap", "--no-progress",
            "--end", str(end_ns), "--imu-calib", str(imu_calib)]  # fmt: skip
-    r = subprocess.run(cmd, capture_output=True, text=True)
+    r = subprocess.run(cmd, capture_output=True, text=True, env=ENV)
     if r.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -60,8 +65,10 @@ def run(src: Path, out: Path, end_ns: int, imu_calib: Path) -> float:
 
 def ate(run_dir: Path, gt_folder: Path) -> dict[str, float]:
     js = run_dir / "eval.json"
-    subprocess.run([str(EXE), "eval", str(run_dir), str(gt_folder), "--json", str(js)],
-                   check=True, capture_output=True)  # fmt: skip
+    cmd = [*EXE, "eval", str(run_dir), str(gt_folder), "--json", str(js)]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=ENV)
+    if r.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed ({r.returncode}):\n{r.stderr[-2000:]}")
     res = json.loads(js.read_text())["results"]
     return {r["label"].split()[0]: float(r["ate_trans_m"]["rmse"]) for r in res}
 

@@ -26,7 +26,7 @@ from eurocslam.dataset.bag.tf_tree import TfEdge, TfTree
 from eurocslam.dataset.calib import default_rig
 from eurocslam.dataset.doctor.bag_checks import check_bag
 from eurocslam.dataset.doctor.report import exit_code
-from eurocslam.dataset.imu_noise import ImuNoise, load_imu_noise, noise_from_config
+from eurocslam.dataset.imu_noise import NoiseFigures, load_imu_noise, noise_from_config
 from eurocslam.errors import CalibrationError, ConfigError, DatasetError
 from eurocslam.geometry import inv_T, make_T, so3_exp
 from eurocslam.io.ros2_calib import stereo_camera_infos
@@ -290,7 +290,8 @@ def test_good_robot_bag_and_the_calibration_precedence(tmp_path: Path) -> None:
     assert seq.calib_source == "CameraInfo + /tf_static of good"
     assert is_rectified(seq.rig) and seq.rig.baseline == pytest.approx(0.05, abs=1e-12)
     assert seq.rig.imu is not None and seq.rig.imu.rate_hz == 200.0
-    assert any("the bag carries no figures (none given): using EuRoC's" in n for n in seq.notes)
+    default = "the bag carries no figures (none given): using eurocslam/data/imu_noise_defaults"
+    assert any(default in n for n in seq.notes)
     # --calib beats the bag (EuRoC's sizes then do not fit these images: an error saying so)
     calib = tmp_path / "calib"
     for name, text in default_rig().yaml_texts:
@@ -395,7 +396,7 @@ def test_imu_noise_files_and_config(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match=r"imu\.gyroscope_random_walk' must be a number"):
         config_from_dict({"imu": {"gyroscope_random_walk": "x"}})
     # the figures given win; the rest from the default
-    merged = ImuNoise(gyroscope_noise_density=1.0, source="mine").over(n)
+    merged = NoiseFigures(gyroscope_noise_density=1.0, source="mine").over(n)
     assert merged.gyroscope_noise_density == 1.0 and merged.gyroscope_random_walk == 2.66e-05
 
 

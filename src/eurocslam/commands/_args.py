@@ -53,12 +53,14 @@ def add_sequence_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("sequence", help=SEQUENCE_HELP)
     parser.add_argument(
         "--calib",
-        metavar="DIR",
+        metavar="FILE|DIR",
         type=Path,
         default=None,
-        help="folder with cam0/, cam1/ and (optional) imu0/ sensor.yaml files (default for a "
-        "bag: an MCAP's attached sensor.yaml, else the bag's CameraInfo and /tf_static, else "
-        "the built-in EuRoC calibration)",
+        help="the calibration to use: a folder with cam0/, cam1/ and (optional) imu0/ "
+        "sensor.yaml files; for ASL folders also a Kalibr camchain.yaml (its imu.yaml beside "
+        "it) or a folder holding one (default: the folder's sensor.yaml, TUM-VI's "
+        "dso/camchain.yaml, a Kalibr camchain beside it; bags: an MCAP's attached sensor.yaml, "
+        "else the bag's CameraInfo and /tf_static, else the built-in EuRoC calibration)",
     )
     parser.add_argument(
         "--imu-calib",

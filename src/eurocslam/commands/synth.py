@@ -23,7 +23,7 @@ _SWITCHES = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from eurocslam.synth.spec import SynthSpec
+    from eurocslam.synth.spec import RIGS, SynthSpec
 
     d = SynthSpec()
     p.add_argument("out", type=Path, metavar="OUT", help="output sequence folder (gets mav0/)")
@@ -83,10 +83,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--rig",
-        choices=("euroc", "realsense"),
-        default=None,
-        help="a built-in rig instead of --calib: euroc (default) or realsense (848x480 "
-        "infrared pair at 30 Hz, ~5 cm baseline, gyro 400 Hz, accelerometer apart at 250 Hz)",
+        choices=RIGS,
+        default="euroc",
+        help="euroc: EuRoC's cameras and IMU (or --calib's), an EuRoC ASL folder; tumvi: "
+        "TUM-VI's 512x512 stereo fisheye (equidistant, ~0.10 m baseline) and IMU, 20 Hz "
+        "images, 200 Hz IMU, written as a TUM-VI folder (dso/camchain.yaml, mav0/mocap0); "
+        "realsense: a RealSense-like 848x480 infrared pair at 30 Hz, ~5 cm baseline, gyro 400 Hz, "
+        "accelerometer apart at 250 Hz, an EuRoC ASL folder; with --trajectory a rig's cam0 "
+        "flies where EuRoC's cam0 does (default: euroc)",
     )
     p.add_argument(
         "--imu-rate",
@@ -206,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
     spec = spec_from_args(args)
     out = synthesize(spec, args.out, workers=args.workers, overwrite=args.force)
     summary = json.loads((out / "synth.json").read_text())
-    written = write_bags(out, args, spec.rig or ("calib" if spec.calib else "euroc"))
+    written = write_bags(out, args, "calib" if spec.calib else spec.rig)
     if written:
         summary["bags"] = [str(b) for b in written]
     if args.json:

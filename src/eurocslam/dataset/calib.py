@@ -38,11 +38,13 @@ __all__ = [
     "calib_folder",
     "camera_from_yaml",
     "default_rig",
+    "float_list",
     "imu_from_yaml",
     "load_rig",
     "load_sensor_yaml",
     "load_sensor_yaml_text",
     "read_yaml_text",
+    "require_key",
     "rig_from_texts",
 ]
 
@@ -89,13 +91,13 @@ def load_sensor_yaml(path: Path) -> dict[str, Any]:
     return load_sensor_yaml_text(read_yaml_text(path), path)
 
 
-def _key(data: dict[str, Any], key: str, path: Path | str) -> Any:
+def require_key(data: dict[str, Any], key: str, path: Path | str) -> Any:
     if key not in data:
         raise CalibrationError(f"{path}: missing key '{key}'")
     return data[key]
 
 
-def _floats(value: Any, n: int | None, key: str, path: Path | str) -> list[float]:
+def float_list(value: Any, n: int | None, key: str, path: Path | str) -> list[float]:
     try:
         out = [float(v) for v in value]
     except (TypeError, ValueError):
@@ -108,10 +110,10 @@ def _floats(value: Any, n: int | None, key: str, path: Path | str) -> list[float
 
 
 def _matrix4(data: dict[str, Any], path: Path | str) -> F64:
-    t = _key(data, "T_BS", path)
+    t = require_key(data, "T_BS", path)
     if not isinstance(t, dict) or "data" not in t:
         raise CalibrationError(f"{path}: key 'T_BS' must have 'rows', 'cols' and 'data'")
-    vals = _floats(t["data"], 16, "T_BS.data", path)
+    vals = float_list(t["data"], 16, "T_BS.data", path)
     return np.array(vals, dtype=np.float64).reshape(4, 4)
 
 
@@ -148,11 +150,11 @@ def camera_from_yaml(
     if model != "pinhole":
         raise CalibrationError(f"{path}: camera_model '{model}' not supported (only pinhole)")
     dmodel = distortion_model_of(data.get("distortion_model", "radial-tangential"), path)
-    intr = _floats(_key(data, "intrinsics", path), 4, "intrinsics", path)
-    res = _floats(_key(data, "resolution", path), 2, "resolution", path)
-    dist = _floats(data.get("distortion_coefficients", [0, 0, 0, 0]), None, "distortion", path)
+    intr = float_list(require_key(data, "intrinsics", path), 4, "intrinsics", path)
+    res = float_list(require_key(data, "resolution", path), 2, "resolution", path)
+    dist = float_list(data.get("distortion_coefficients", [0, 0, 0, 0]), None, "distortion", path)
     check_coefficient_count(dmodel, dist, "distortion_coefficients", path)
-    rate = float(_floats([_key(data, "rate_hz", path)], 1, "rate_hz", path)[0])
+    rate = float(float_list([require_key(data, "rate_hz", path)], 1, "rate_hz", path)[0])
     if any(r != int(r) for r in res):
         raise CalibrationError(f"{path}: key 'resolution' must be whole pixels, got {res}")
     cam = CameraCalib(
@@ -177,7 +179,7 @@ def imu_from_yaml(data: dict[str, Any], path: Path | str, *, validate: bool = Tr
     """An `ImuCalib` from a parsed imu0 sensor.yaml; `validate` as in `camera_from_yaml`."""
 
     def f(key: str) -> float:
-        return _floats([_key(data, key, path)], 1, key, path)[0]
+        return float_list([require_key(data, key, path)], 1, key, path)[0]
 
     imu = ImuCalib(
         T_body_imu=_matrix4(data, path),

@@ -1,6 +1,6 @@
-"""Writing a camera or IMU calibration as an EuRoC-style `sensor.yaml` (for sources that carry
-their calibration in another form, e.g. KITTI's calib.txt or a bag's CameraInfo and /tf_static:
-MCAP attachments, ASL copies)."""
+"""Writing a calibration as EuRoC-style `sensor.yaml` files (for sources that carry their
+calibration in another form, e.g. KITTI's calib.txt, a Kalibr camchain: MCAP attachments, ASL
+copies)."""
 
 from __future__ import annotations
 
@@ -38,13 +38,13 @@ def camera_yaml_text(cam: CameraCalib, comment: str = "") -> str:
     return "\n".join(lines) + "\n"
 
 
-def imu_yaml_text(imu: ImuCalib, comment: str = "imu0") -> str:
-    """An EuRoC-style imu0 `sensor.yaml` that `imu_from_yaml` reads back to the same values."""
+def imu_yaml_text(imu: ImuCalib, comment: str = "") -> str:
+    """An EuRoC-style imu0 `sensor.yaml` for `imu` that `imu_from_yaml` reads back exactly."""
     T = ", ".join(_yaml_float(v) for v in np.asarray(imu.T_body_imu, dtype=np.float64).ravel())
     lines = [
         "%YAML:1.0",
         "sensor_type: imu",
-        f"comment: {comment}",
+        f"comment: {comment or 'imu0'}",
         "T_BS:",
         "  cols: 4",
         "  rows: 4",

@@ -1,12 +1,13 @@
 """IMU noise figures (continuous-time white-noise densities and bias random walks) from outside
 the input: a Kalibr-style `imu.yaml` (`--imu-calib FILE`), the run configuration's `imu:`
 section, or, for a bag whose calibration came from its CameraInfo and `/tf_static` (bags carry
-no noise figures), EuRoC's ADIS16448 figures with a note saying so.
+no noise figures), the packaged defaults (`data/imu_noise_defaults.yaml`, a MEMS IMU of the
+EuRoC / TUM-VI class) with a note saying so.
 
-Accepted files: Kalibr's `imu.yaml` (the four keys at the top level, or under `imu0`/any
-`imuN` as in its results files), and an EuRoC `imu0/sensor.yaml` (the same key names).
-Precedence: `--imu-calib` > the configuration's `imu:` figures > the input's own calibration >
-the EuRoC default (bags only).
+Accepted files: Kalibr's `imu.yaml` (the four keys at the top level, or under `imu0` as in its
+results files; read by `calib_kalibr.read_imu_yaml`), and an EuRoC `imu0/sensor.yaml` (the same
+key names). Precedence: `--imu-calib` > the configuration's `imu:` figures > the input's own
+calibration > the defaults (bags calibrated by their CameraInfo only).
 """
 
 from __future__ import annotations
@@ -16,25 +17,23 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from eurocslam.dataset.calib import ImuCalib, StereoRig, default_rig, load_sensor_yaml
+from eurocslam.dataset.calib import ImuCalib, StereoRig, load_sensor_yaml
+from eurocslam.dataset.calib_kalibr import NOISE_KEYS, read_imu_yaml
 from eurocslam.dataset.doctor.calib_checks import check_imu
 from eurocslam.errors import CalibrationError
 
-KEYS = (
-    "gyroscope_noise_density",
-    "gyroscope_random_walk",
-    "accelerometer_noise_density",
-    "accelerometer_random_walk",
-)
+KEYS = NOISE_KEYS  # gyroscope_noise_density, gyroscope_random_walk, accelerometer_...
 _FIELDS = dict(
     zip(KEYS, ("gyro_noise_density", "gyro_random_walk", "accel_noise_density",
                "accel_random_walk"), strict=True)
 )  # fmt: skip
+DEFAULTS = "eurocslam/data/imu_noise_defaults.yaml"
 
 
 @dataclass(frozen=True)
-class ImuNoise:
-    """Noise figures to put on an IMU calibration; a None figure keeps the calibration's."""
+class NoiseFigures:
+    """Noise figures to put on an IMU calibration, and where they came from; a None figure
+    keeps the calibration's (a config's `imu:` may set some of the four)."""
 
     gyroscope_noise_density: float | None = None  # rad/s/sqrt(Hz)
     gyroscope_random_walk: float | None = None  # rad/s^2/sqrt(Hz)
@@ -55,7 +54,7 @@ class ImuNoise:
         changes = {_FIELDS[k]: getattr(self, k) for k in KEYS if getattr(self, k) is not None}
         return dataclasses.replace(imu, **changes)
 
-    def over(self, other: ImuNoise) -> ImuNoise:
+    def over(self, other: NoiseFigures) -> NoiseFigures:
         """These figures, the unset ones taken from `other`."""
         vals = {k: getattr(self, k) if getattr(self, k) is not None else getattr(other, k)
                 for k in KEYS}  # fmt: skip
@@ -63,61 +62,37 @@ class ImuNoise:
             src = other.source if self.empty else self.source
         else:
             src = f"{self.source}, else {other.source}"
-        return ImuNoise(**vals, source=src)
+        return NoiseFigures(**vals, source=src)
 
 
-def _imu_mapping(data: dict[str, Any], path: Path) -> dict[str, Any]:
-    if any(k in data for k in KEYS):
-        return data
-    nested = [k for k, v in data.items() if str(k).startswith("imu") and isinstance(v, dict)]
-    if nested:
-        return dict(data[sorted(nested)[0]])
-    raise CalibrationError(
-        f"{path}: no IMU noise figures (expected the keys {', '.join(KEYS)}, at the top level "
-        "or under imu0)"
-    )
-
-
-def load_imu_noise(path: Path | str) -> ImuNoise:
+def load_imu_noise(path: Path | str) -> NoiseFigures:
     """All four figures from a Kalibr `imu.yaml` or an EuRoC `imu0/sensor.yaml`; errors name the
     file and the key."""
     p = Path(path)
     if not p.is_file():
         raise CalibrationError(f"{p}: IMU calibration file not found")
-    data = _imu_mapping(load_sensor_yaml(p), p)
-    vals: dict[str, float] = {}
+    noise, _, _ = read_imu_yaml(load_sensor_yaml(p), p)
     for k in KEYS:
-        if k not in data:
-            raise CalibrationError(f"{p}: missing key '{k}'")
-        try:
-            v = float(data[k])
-        except (TypeError, ValueError):
-            raise CalibrationError(f"{p}: key '{k}' must be a number, got {data[k]!r}") from None
-        if not v > 0 or v == float("inf"):
+        v = float(getattr(noise, k))
+        if not 0 < v < float("inf"):
             raise CalibrationError(f"{p}: key '{k}' must be a positive number, got {v!r}")
-        vals[k] = v
-    return ImuNoise(**vals, source=str(p))
+    return NoiseFigures(**{k: float(getattr(noise, k)) for k in KEYS}, source=str(p))
 
 
-def noise_from_config(imu_cfg: Any, origin: str = "the configuration") -> ImuNoise:
+def noise_from_config(imu_cfg: Any, origin: str = "the configuration") -> NoiseFigures:
     """The figures a run configuration's `imu:` section sets (`ImuConfig`; unset keys None)."""
-    return ImuNoise(**{k: getattr(imu_cfg, k, None) for k in KEYS}, source=f"{origin} (imu:)")
+    return NoiseFigures(**{k: getattr(imu_cfg, k, None) for k in KEYS}, source=f"{origin} (imu:)")
 
 
-def default_imu_noise() -> ImuNoise:
-    """EuRoC's ADIS16448 figures (the built-in imu0/sensor.yaml)."""
-    imu = default_rig().imu
-    assert imu is not None
-    return ImuNoise(
-        imu.gyro_noise_density,
-        imu.gyro_random_walk,
-        imu.accel_noise_density,
-        imu.accel_random_walk,
-        source="EuRoC's ADIS16448 figures (built in)",
-    )
+def default_figures() -> NoiseFigures:
+    """The packaged defaults (`calib_sources.default_imu_noise`)."""
+    from eurocslam.dataset.calib_sources import default_imu_noise
+
+    d = default_imu_noise()
+    return NoiseFigures(**{k: float(getattr(d, k)) for k in KEYS}, source=DEFAULTS)
 
 
-def with_imu_noise(rig: StereoRig, noise: ImuNoise, origin: str) -> StereoRig:
+def with_imu_noise(rig: StereoRig, noise: NoiseFigures, origin: str) -> StereoRig:
     """`rig` with `noise` on its IMU (checked as a calibration; errors name `origin`); its
     imu0 sensor.yaml text (MCAP attachments) rewritten to match."""
     if rig.imu is None or noise.empty:

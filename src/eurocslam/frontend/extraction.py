@@ -80,7 +80,7 @@ class Extractor:
     def __init__(self, rig: StereoRig, config: FrontendConfig) -> None:
         self.rig = rig
         self.config = config
-        self.rectifier = StereoRectifier(rig, config.rectify_alpha)
+        self.rectifier = StereoRectifier(rig, config.rectify_alpha, config.rectify_fov_deg)
         self.scale = pyramid_scales(config)
         self._local = threading.local()
 

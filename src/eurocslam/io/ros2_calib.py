@@ -32,17 +32,17 @@ class CameraInfoData:
 
 
 def stereo_camera_infos(
-    rig: StereoRig, alpha: float = 0.0
+    rig: StereoRig, alpha: float = 0.0, fov_deg: float | None = None
 ) -> tuple[CameraInfoData, CameraInfoData]:
-    """CameraInfo for cam0 and cam1: K, D (the model's ROS name and coefficients: plumb_bob for
-    EuRoC's) and R/P of `rectify_stereo(rig, alpha)`
-    (zero disparity at infinity). cam1's P[0, 3] = -fx' * baseline, as in ROS."""
-    rect = rectify_stereo(rig, alpha)
+    """CameraInfo for cam0 and cam1: K, the camera model's distortion (`plumb_bob` with 5
+    coefficients for a pinhole camera, `equidistant` with k1..k4 for a fisheye) and R/P of
+    `rectify_stereo(rig, alpha, fov_deg)` (zero disparity at infinity). cam1's
+    P[0, 3] = -fx' * baseline, as in ROS."""
+    rect = rectify_stereo(rig, alpha, fov_deg)
     return _info(rig.cam0, rect.R_rect0_cam0, rect.P0), _info(rig.cam1, rect.R_rect1_cam1, rect.P1)
 
 
 def _info(c: CameraCalib, R: F64, P: F64) -> CameraInfoData:
-    """The camera's model under its ROS name with ROS's coefficients (plumb_bob: 5)."""
     return CameraInfoData(
         c.width,
         c.height,

@@ -1,16 +1,15 @@
-"""The rigs `eurocslam synth --rig NAME` renders with, shipped in the package: `euroc` (EuRoC's
-VI-sensor, the default) and `realsense` (a RealSense-like 848x480 infrared pair at 30 Hz with a
-~5 cm baseline and a 400 Hz IMU; not a real device's calibration)."""
+"""The RealSense-like rig `eurocslam synth --rig realsense` renders with, shipped in the package
+(`data/realsense_calib/`): an 848x480 infrared pair at 30 Hz with a ~5 cm baseline, slight
+distortion and misalignment, and a 400 Hz IMU (BMI055 datasheet noise); not a real device's
+calibration. (EuRoC's rig is `dataset.calib.default_rig`, TUM-VI's
+`dataset.calib_sources.tumvi_rig`.)"""
 
 from __future__ import annotations
 
 import functools
 from importlib import resources
 
-from eurocslam.dataset.calib import StereoRig, default_rig, rig_from_texts
-from eurocslam.errors import DatasetError
-
-RIGS = ("euroc", "realsense")
+from eurocslam.dataset.calib import StereoRig, rig_from_texts
 
 
 @functools.cache
@@ -18,12 +17,3 @@ def realsense_rig() -> StereoRig:
     base = resources.files("eurocslam") / "data" / "realsense_calib"
     texts = {s: (base / s / "sensor.yaml").read_text() for s in ("cam0", "cam1", "imu0")}
     return rig_from_texts(texts, "<built-in RealSense-like calibration>")
-
-
-def builtin_rig(name: str) -> StereoRig:
-    """A built-in rig by name (`RIGS`)."""
-    if name == "euroc":
-        return default_rig()
-    if name == "realsense":
-        return realsense_rig()
-    raise DatasetError(f"--rig {name}: unknown rig (built in: {', '.join(RIGS)})")

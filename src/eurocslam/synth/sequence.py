@@ -12,10 +12,11 @@ import cv2
 import numpy as np
 
 from eurocslam.dataset.bag.imu_union import unite_imu
-from eurocslam.dataset.calib import StereoRig, calib_folder, load_rig
+from eurocslam.dataset.calib import StereoRig, calib_folder, default_rig, load_rig
+from eurocslam.dataset.calib_sources import tumvi_kalibr_texts, tumvi_rig
 from eurocslam.dataset.split_imu import SplitImu, write_split_imu
 from eurocslam.errors import CalibrationError, DatasetError
-from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
+from eurocslam.geometry import F64, inv_T, make_T, rot_to_quat_wxyz
 from eurocslam.memory import usable_cores
 from eurocslam.synth import writer
 from eurocslam.synth.imu import (
@@ -34,6 +35,7 @@ from eurocslam.synth.trajectory import (
     builtin_motion,
     motion_from_groundtruth,
     read_groundtruth_file,
+    reexpress,
 )
 from eurocslam.synth.world import World, build_world
 
@@ -45,6 +47,20 @@ SHOT_NOISE_GAIN = 0.05  # shot-noise variance per DN of signal
 EXPOSURE_SPREAD = 0.15  # log-gain amplitude of the slow exposure changes
 BLUR_EXPOSURE_S = 0.008  # exposure window for motion blur
 BLUR_SUBFRAMES = 4  # renders besides the one at the frame time
+
+
+def scene_rig(spec: SynthSpec) -> StereoRig:
+    """The rig a spec renders: EuRoC's (built in, or `calib`'s), TUM-VI's fisheye or the
+    RealSense-like pair."""
+    from eurocslam.synth.rigs import realsense_rig
+
+    if spec.rig in ("tumvi", "realsense"):
+        if spec.calib is not None:
+            raise DatasetError(f"--calib with --rig {spec.rig}: the rig is built in")
+        return tumvi_rig() if spec.rig == "tumvi" else realsense_rig()
+    if spec.rig != "euroc":
+        raise DatasetError(f"rig '{spec.rig}' unknown (known: euroc, tumvi, realsense)")
+    return load_rig(Path(spec.calib)) if spec.calib is not None else default_rig()
 
 
 @dataclass
@@ -99,7 +115,14 @@ class Scene:
             )
             floor_z: float | None = 0.0
         else:
-            gt = read_groundtruth_file(Path(spec.trajectory))
+            gt_euroc = gt = read_groundtruth_file(Path(spec.trajectory))
+            if spec.rig != "euroc":
+                if spec.imu is not None:
+                    raise DatasetError(
+                        f"--imu with --rig {spec.rig}: real IMU rows belong to EuRoC's rig"
+                    )
+                # the rig's cam0 where EuRoC's cam0 flies (the world stays EuRoC's)
+                gt = reexpress(gt, default_rig().cam0.T_body_cam @ inv_T(rig.cam0.T_body_cam))
             end = spec.end_s
             if spec.duration_s is not None:
                 start = spec.start_s or 0.0
@@ -109,8 +132,11 @@ class Scene:
                 # the motion the real IMU measured (high frequency) on the ground truth (low)
                 span = 2 * 10**9  # read_real_imu needs rows in range; the fit takes what it needs
                 real_rows = read_real_imu(Path(spec.imu), gt.t_ns[0] - span, gt.t_ns[-1] + span)
-            motion = motion_from_groundtruth(
-                gt, start_s=spec.start_s, end_s=end, knot_dt=spec.knot_dt_s, imu=real_rows
+            crop = {"start_s": spec.start_s, "end_s": end, "knot_dt": spec.knot_dt_s}
+            motion = motion_from_groundtruth(gt, **crop, imu=real_rows)  # type: ignore[arg-type]
+            # the world is built around EuRoC's body path, so rigs share it
+            world_motion = (
+                motion if gt is gt_euroc else motion_from_groundtruth(gt_euroc, **crop)  # type: ignore[arg-type]
             )
             floor_z = None
         t_lo = motion.t0_ns + round(motion.t_start_s * 1e9)
@@ -169,8 +195,11 @@ class Scene:
         if spec.trajectory is not None:
             # the world encloses the whole recorded flight, so every crop of a sequence flies
             # through the same room
-            step = max(1, len(gt.p) // 4000)
-            p_all = gt.p[::step] if motion.world_R is None else gt.p[::step] @ motion.world_R.T
+            path = world_motion.spline.positions((cam_t - world_motion.t0_ns) * 1e-9)
+            step = max(1, len(gt_euroc.p) // 4000)
+            p_all = gt_euroc.p[::step]
+            if motion.world_R is not None:
+                p_all = p_all @ motion.world_R.T
             path = np.vstack([path, p_all])
         world = build_world(path, spec.seed, floor_z=floor_z, marker=spec.marker)
         return cls(spec, rig, motion, world, models, cam_t, imu, split=split)
@@ -232,16 +261,12 @@ class Scene:
 
 
 def _rig(spec: SynthSpec) -> StereoRig:
-    """The rig a spec renders with: `calib`'s folder or a built-in `rig` (EuRoC's by default),
-    at `imu_rate_hz` when given; it must have an IMU."""
+    """`scene_rig`, at `imu_rate_hz` when given; it must have an IMU."""
     from dataclasses import replace
 
     from eurocslam.dataset.calib_yaml import imu_yaml_text
-    from eurocslam.synth.rigs import builtin_rig
 
-    if spec.calib is not None and spec.rig is not None:
-        raise DatasetError("--calib and --rig: give one calibration")
-    rig = load_rig(Path(spec.calib)) if spec.calib is not None else builtin_rig(spec.rig or "euroc")
+    rig = scene_rig(spec)
     if rig.imu is None:
         raise CalibrationError(
             f"{calib_folder(Path(str(spec.calib)))}/imu0/sensor.yaml: file not found "
@@ -357,7 +382,9 @@ def synthesize(
     (default: all available cores; the output does not depend on it).
     """
     out = Path(out_dir)
-    stage = writer.prepare_folder(out, overwrite)
+    stage = writer.prepare_folder(
+        out, overwrite, spec.rig if spec.rig in writer.FOLDERS else "euroc"
+    )
     try:
         scene = Scene.build(spec)
         nw = usable_cores() if workers is None else max(1, int(workers))
@@ -368,6 +395,20 @@ def synthesize(
         st = scene.motion.spline.evaluate(scene.t_s(imu.t_ns))
         keep = ~spec.in_blackout(scene.t_s(imu.t_ns))
         summary = _summary(scene, st, render_wall, cpu, nw)
+        if spec.rig == "tumvi":
+            writer.write_tumvi_tables(
+                stage,
+                tumvi_kalibr_texts(),
+                scene.cam_t_ns,
+                imu.t_ns,
+                imu.gyro,
+                imu.accel,
+                keep,
+                st.p,
+                rot_to_quat_wxyz(st.R),
+                summary,
+            )
+            return writer.finish(stage, out)
         writer.write_tables(
             stage,
             scene.rig,

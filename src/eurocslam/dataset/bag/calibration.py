@@ -22,7 +22,7 @@ from eurocslam.dataset.calib import (
     load_sensor_yaml,
     rig_from_texts,
 )
-from eurocslam.dataset.imu_noise import ImuNoise, default_imu_noise, with_imu_noise
+from eurocslam.dataset.imu_noise import NoiseFigures, default_figures, with_imu_noise
 from eurocslam.errors import CalibrationError, DatasetError
 from eurocslam.geometry import F64, make_T
 
@@ -55,8 +55,8 @@ def bag_calibration_name(path: Path, with_imu: bool) -> str:
 
 def imu_calibration(rate_hz: float) -> ImuCalib:
     """The IMU of a rig from a bag: the body frame itself, the measured rate; its noise figures
-    come from outside the bag (`dataset/imu_noise.py`), EuRoC's until then."""
-    d = default_imu_noise()
+    come from outside the bag (`dataset/imu_noise.py`), the packaged defaults until then."""
+    d = default_figures()
     assert d.complete
     return ImuCalib(
         T_body_imu=np.eye(4),
@@ -168,23 +168,23 @@ def rig_from_bag(
 
 
 def apply_imu_noise(
-    rig: StereoRig, noise: ImuNoise | None, from_bag: bool, calib_source: str, notes: list[str]
+    rig: StereoRig, noise: NoiseFigures | None, from_bag: bool, calib_source: str, notes: list[str]
 ) -> StereoRig:
     """IMU noise figures from outside the bag (`--imu-calib`, the config's `imu:`) replace
-    the calibration's; a rig from the bag's CameraInfo takes EuRoC's for the ones not given,
-    with a note."""
+    the calibration's; a rig from the bag's CameraInfo takes the packaged defaults for the ones
+    not given, with a note."""
     if rig.imu is None:
         return rig
-    given = noise if noise is not None else ImuNoise()
+    given = noise if noise is not None else NoiseFigures()
     if from_bag and calib_source != BUILTIN:
         if not given.complete:
             which = "none given" if given.empty else "some not given"
             notes.append(
                 f"IMU noise: the bag carries no figures ({which}): using "
-                f"{default_imu_noise().source} (give yours with --imu-calib imu.yaml or the "
+                f"{default_figures().source} (give yours with --imu-calib imu.yaml or the "
                 "imu: section of --config)"
             )
-        rig = with_imu_noise(rig, given.over(default_imu_noise()), calib_source)
+        rig = with_imu_noise(rig, given.over(default_figures()), calib_source)
     elif not given.empty:
         rig = with_imu_noise(rig, given, given.source)
     if not given.empty:

@@ -37,7 +37,7 @@ from eurocslam.dataset.bag.static import BagStatic, left_is_first, read_static, 
 from eurocslam.dataset.bag.stats import ImageInfo, TopicStats, rate_hz
 from eurocslam.dataset.bag.topics import INFO_ROLES, ROLE_TYPES, TopicMap
 from eurocslam.dataset.calib import StereoRig, calib_folder
-from eurocslam.dataset.imu_noise import ImuNoise
+from eurocslam.dataset.imu_noise import NoiseFigures
 from eurocslam.dataset.types import I64, U8, SkipReport, StereoFrame, empty_imu
 from eurocslam.errors import CalibrationError, DatasetError
 from eurocslam.geometry import F64
@@ -53,7 +53,7 @@ class BagSequence:
         *,
         calib: Path | str | None = None,
         topics: TopicMap | Mapping[str, str] | None = None,
-        imu_noise: ImuNoise | None = None,
+        imu_noise: NoiseFigures | None = None,
         show_progress: bool | None = None,
     ) -> None:
         self.path = Path(path)

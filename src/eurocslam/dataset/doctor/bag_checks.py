@@ -24,7 +24,7 @@ from eurocslam.dataset.doctor.report import (
     DoctorReport,
     Finding,
 )
-from eurocslam.dataset.imu_noise import ImuNoise
+from eurocslam.dataset.imu_noise import NoiseFigures
 from eurocslam.dataset.types import I64
 from eurocslam.errors import EurocSlamError
 
@@ -193,7 +193,7 @@ def check_bag(
     *,
     calib: Path | str | None = None,
     topics: TopicMap | Mapping[str, str] | None = None,
-    imu_noise: ImuNoise | None = None,
+    imu_noise: NoiseFigures | None = None,
 ) -> list[Finding]:
     """`check_bag_sequence` on a path; a bag that cannot be opened (or whose calibration cannot
     be one: a bad CameraInfo or tf tree) gives one error finding."""
@@ -209,7 +209,7 @@ def diagnose_bag(
     *,
     calib: Path | str | None = None,
     topics: TopicMap | Mapping[str, str] | None = None,
-    imu_noise: ImuNoise | None = None,
+    imu_noise: NoiseFigures | None = None,
 ) -> DoctorReport:
     """The doctor on a ROS bag / MCAP input: `check_bag`'s findings as a report (errors first)."""
     t0 = time.perf_counter()
