@@ -13,6 +13,8 @@ against the folder's ground truth. CPU seconds are the child process's.
 Variants: NAME=FORMAT:IMAGES:IMU[:ACCEL_HZ:GYRO_HZ], e.g. `ros1:raw:united`,
 `ros2-mcap:rect:split`, `ros2-db3:raw:split:63:200` (the split streams resampled at those
 rates; without rates: the folder's accel0/gyro0 streams if it has them, else its own rows).
+IMAGES: raw, rect (a driver's float maps) or rect-fixed (the frontend's own fixed-point maps:
+the images the frontend would make from the raw ones).
 
 usage: .venv/bin/python benchmarks/bench_robot_bag.py ASL [--seconds 20] [--work DIR]
        [--variant NAME=SPEC ...] [--json OUT.json]
@@ -47,6 +49,7 @@ DEFAULT_VARIANTS = [
     "db3_raw_split=ros2-db3:raw:split",
     "mcap_raw_split=ros2-mcap:raw:split",
     "mcap_rect_united=ros2-mcap:rect:united",
+    "mcap_rect_fixed_united=ros2-mcap:rect-fixed:united",
     "mcap_raw_split_63_200=ros2-mcap:raw:split:63:200",
 ]
 
@@ -119,8 +122,10 @@ def main() -> int:
         parts = spec.split(":")
         fmt, images, imu = parts[:3]
         rates = [float(x) for x in parts[3:5]] if len(parts) >= 5 else [None, None]
-        opt = RealsenseBagOptions(images=images, imu=imu, accel_rate_hz=rates[0],
-                                  gyro_rate_hz=rates[1], max_frames=n)  # fmt: skip
+        maps = "fixed" if images == "rect-fixed" else "float"
+        opt = RealsenseBagOptions(images=images.removesuffix("-fixed"), imu=imu, rect_maps=maps,
+                                  accel_rate_hz=rates[0], gyro_rate_hz=rates[1],
+                                  max_frames=n)  # fmt: skip
         bag = work / (name + (".bag" if fmt == "ros1" else ""))
         if bag.exists():
             shutil.rmtree(bag) if bag.is_dir() else bag.unlink()

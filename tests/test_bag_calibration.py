@@ -436,3 +436,27 @@ def test_rotated_accelerometer_frame_is_turned_into_the_gyros() -> None:
     )
     np.testing.assert_allclose(imu.accel, [[0.0, 1.0, 9.81]] * 3, atol=1e-15)
     assert R_OPT.shape == (3, 3)
+
+
+def test_run_takes_imu_noise_from_the_flag_else_the_config(tmp_path: Path) -> None:
+    import argparse
+
+    from eurocslam.commands._args import source_options
+
+    cfg = config_from_dict({"imu": {"gyroscope_noise_density": 3e-4}})
+    args = argparse.Namespace(topic=[], calib=None, imu_calib=None)
+    noise = source_options(args, cfg.imu)["imu_noise"]
+    assert noise.gyroscope_noise_density == 3e-4 and noise.source == "the configuration (imu:)"
+    assert source_options(args, config_from_dict({}).imu)["imu_noise"] is None
+    kalibr = tmp_path / "imu.yaml"
+    kalibr.write_text(
+        "accelerometer_noise_density: 1.86e-03\naccelerometer_random_walk: 4.33e-04\n"
+        "gyroscope_noise_density: 1.87e-04\ngyroscope_random_walk: 2.66e-05\n"
+    )
+    args.imu_calib = kalibr  # the flag beats the config
+    assert source_options(args, cfg.imu)["imu_noise"].gyroscope_noise_density == 1.87e-4
+    # a partial config on a CameraInfo bag: the figure given, the defaults for the rest
+    bag = write_robot_bag(tmp_path / "partial", GOOD, realsense_tree())
+    seq = BagSequence(bag, imu_noise=noise)
+    assert seq.rig.imu is not None and seq.rig.imu.gyro_noise_density == 3e-4
+    assert any("(some not given)" in n for n in seq.notes)

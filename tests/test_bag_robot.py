@@ -204,6 +204,21 @@ def test_doctor_and_run_options_on_a_robot_bag(
     _same_rig(euroc.rig, seq.rig)
 
 
+def test_convert_keeps_the_calibration_read_from_camera_info(
+    euroc: AslSequence, tmp_path: Path
+) -> None:
+    """convert attaches the rig read from CameraInfo and /tf_static as sensor.yaml files, so its
+    MCAP runs with the same calibration."""
+    bag = write_realsense_bag(euroc, tmp_path / "rs.bag", "ros1",
+                              RealsenseBagOptions(max_frames=3))  # fmt: skip
+    out = tmp_path / "rs.mcap"
+    imu0 = str(euroc.mav0 / "imu0" / "sensor.yaml")
+    assert main(["convert", str(bag), "-o", str(out), "--imu-calib", imu0, "--no-progress"]) == 0
+    seq = open_sequence(out, quiet=True)
+    assert seq.calib_source == "rs.mcap attachments"
+    _same_rig(euroc.rig, seq.rig)
+
+
 def test_synth_writes_robot_bags(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "rs"
     args = [

@@ -12,7 +12,8 @@ Topics (`ns` = `/camera`):
 - `images="rect"`: `/camera/infra{1,2}/image_rect_raw`, rectified here as a driver would
   (`rectify_stereo` with `rect_alpha`, float maps and bilinear interpolation: not the
   frontend's fixed-point maps, so the pixels differ a little from what the frontend would
-  make); CameraInfo with D = 0, R = I, K = P's pinhole, the baseline in the right camera's
+  make; `rect_maps="fixed"` uses the frontend's fixed-point maps instead, the same pixels);
+  CameraInfo with D = 0, R = I, K = P's pinhole, the baseline in the right camera's
   P[0, 3] (`p_tx`: "ros" as REP-104 says, "zero" as realsense-ros before 2.2.16, "flipped" with
   the sign of a left camera, as some realsense-ros versions publish). The optical frames are
   then the rectified cameras.
@@ -67,6 +68,7 @@ class RealsenseBagOptions:
     accel_rate_hz: float | None = None
     gyro_rate_hz: float | None = None
     rect_alpha: float = 0.0
+    rect_maps: str = "float"  # float (a driver's) | fixed (the frontend's CV_16SC2 tables)
     compressed: bool = False
     encoding: str = "mono8"  # mono8 | mono16 (raw Image messages)
     p_tx: str = "ros"
@@ -81,6 +83,7 @@ class RealsenseBagOptions:
             ("imu", self.imu, IMU_FORMS),
             ("p_tx", self.p_tx, P_TX),
             ("encoding", self.encoding, ("mono8", "mono16")),
+            ("rect_maps", self.rect_maps, ("float", "fixed")),
         ):
             if value not in allowed:
                 raise DatasetError(
@@ -134,9 +137,10 @@ def _published_calibration(rig: StereoRig, opt: RealsenseBagOptions) -> _Calib:
     T0 = g.T_body_rect0
     T1 = T0 @ make_T(np.eye(3), np.array([g.baseline, 0.0, 0.0]))
     size = (c0.width, c0.height)
+    kind = cv2.CV_32FC1 if opt.rect_maps == "float" else cv2.CV_16SC2
     maps: tuple[Any, Any] = (
-        cv2.initUndistortRectifyMap(c0.K, c0.D, rect.R_rect0_cam0, rect.P0, size, cv2.CV_32FC1),
-        cv2.initUndistortRectifyMap(c1.K, c1.D, rect.R_rect1_cam1, rect.P1, size, cv2.CV_32FC1),
+        cv2.initUndistortRectifyMap(c0.K, c0.D, rect.R_rect0_cam0, rect.P0, size, kind),
+        cv2.initUndistortRectifyMap(c1.K, c1.D, rect.R_rect1_cam1, rect.P1, size, kind),
     )
     return _Calib((K, K), (np.zeros(5), np.zeros(5)), "plumb_bob", (np.eye(3), np.eye(3)),
                   (P0, P1), (T0, T1), maps)  # fmt: skip
