@@ -116,3 +116,20 @@ def test_tracking_one_frame_in_n_needs_the_imu(tmp_path: Path) -> None:
     p.write_text("frontend:\n  track_every: 0\n")
     with pytest.raises(ConfigError, match=r"'frontend\.track_every' value 0 out of range"):
         load_config(p)
+
+
+def test_fast_preset_is_the_defaults_with_track_every_2() -> None:
+    """configs/fast.yaml (README, docs/commands.md): keys it leaves out take the defaults, so it
+    is the default configuration but for tracking every second frame, which needs the IMU."""
+    from eurocslam.config import STEREO_INERTIAL, resolve_mode
+
+    fast = load_config(REPO / "configs" / "fast.yaml")
+    assert fast.frontend.track_every == 2
+    default = RunConfig()
+    expected = dataclasses.replace(
+        default, frontend=dataclasses.replace(default.frontend, track_every=2)
+    )
+    assert fast == expected
+    assert resolve_mode(fast, has_imu=True).mode == STEREO_INERTIAL
+    with pytest.raises(ConfigError, match="track_every"):
+        resolve_mode(fast, has_imu=False)

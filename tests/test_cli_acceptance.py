@@ -291,3 +291,39 @@ def test_run_replaces_a_previous_runs_outputs(v101_micro, tmp_path, capsys):
     assert not (out / "run.mcap").exists()
     assert (out / "trajectory_final.tum").is_file()
     assert "replacing the outputs of a previous run" in capsys.readouterr().err
+
+
+def test_run_as_a_process_ends_without_teardown_and_loses_no_output(v101_micro, tmp_path):
+    """`eurocslam run` as its own process ends right after the command (QUICK_EXIT: no
+    interpreter teardown, so an atexit hook never runs), with everything it printed on a pipe
+    and every output on disk; another command ends as usual (its atexit hook runs)."""
+    import json
+    import subprocess
+    import sys
+
+    script = (
+        "import atexit, sys; atexit.register(lambda: print('TEARDOWN', file=sys.stderr)); "
+        "from eurocslam.cli import main; sys.argv = ['eurocslam', *sys.argv[1:]]; "
+        "sys.exit(main())"
+    )
+    out = tmp_path / "out"
+    run = [str(v101_micro), "-o", str(out), "--end", "0.5", "--no-progress"]
+    r = subprocess.run(
+        [sys.executable, "-c", script, "run", *run], capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 0, r.stderr
+    assert "TEARDOWN" not in r.stderr
+    assert r.stdout.rstrip().endswith(f"outputs in {out}")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] > 0
+    for name in ("run.mcap", "trajectory_final.tum", "trajectory_online.csv", "map.ply", "map"):
+        assert (out / name).exists(), name
+    missing = str(tmp_path / "missing.tum")
+    r = subprocess.run(
+        [sys.executable, "-c", script, "eval", missing, missing],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode != 0 and "error" in r.stderr
+    assert "TEARDOWN" in r.stderr

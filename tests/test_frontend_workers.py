@@ -283,3 +283,38 @@ print(len(list(fe(frames))), len(fe.cost.worker_peak_rss_mb))
     assert r.returncode == 0, r.stderr
     assert r.stdout.split() == ["3", "2"]  # three frames, extracted by two workers
     assert "note:" not in r.stderr
+
+
+def test_workers_started_early_are_the_ones_that_extract(scene: Scene, frames) -> None:
+    """`run` starts the workers before its own imports (frontend/spawn.py); the extraction
+    takes those processes, extracts as inline extraction does, and stops them."""
+    from eurocslam.frontend import spawn
+    from eurocslam.frontend.extraction import Extractor
+
+    spawn.start_early(2)
+    assert spawn._early is not None
+    early = sorted(p.pid for p in spawn._early.procs)
+    extractor = Extractor(scene.rig, FrontendConfig())
+    workers = ExtractionWorkers(extractor, 2)
+    assert spawn._early is None
+    assert sorted(p.pid for p in workers._procs) == early
+    for fr, ff in workers.stream(iter(frames[:4])):
+        _same(ff, extractor.extract(fr))
+    assert all(_gone(pid) for pid in early)
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="ps --ppid")
+def test_a_run_that_ends_before_extracting_stops_the_early_workers(tmp_path: Path) -> None:
+    """Workers started early for a run that fails first (no such sequence) end quietly: the
+    one-line error only, no worker traceback, none left behind."""
+    script = (
+        "import os, subprocess, sys; from eurocslam.cli import main; "
+        f"code = main(['run', {str(tmp_path / 'missing')!r}, '-o', {str(tmp_path / 'out')!r}]); "
+        "ps = subprocess.run(['ps', '-o', 'args=', '--ppid', str(os.getpid())], "
+        "capture_output=True, text=True).stdout; "
+        "print('LEFT' if 'eurocslam.frontend.workers' in ps else 'NONE'); sys.exit(code)"
+    )
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert r.returncode != 0 and "error" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    assert r.stdout.strip() == "NONE"

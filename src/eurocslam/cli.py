@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import pkgutil
 import sys
 import traceback
@@ -67,7 +68,7 @@ def build_parser() -> argparse.ArgumentParser:
     for mod in mods:
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _quick_exit=getattr(mod, "QUICK_EXIT", False))
     for name, reason in broken.items():
         p = sub.add_parser(name, help=f"(unavailable: {reason})", add_help=False)
         p.add_argument("rest", nargs=argparse.REMAINDER)
@@ -100,12 +101,24 @@ def _console_logging() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The `eurocslam` command line (`argv`: the arguments; None: this process's own). When it
+    is the process's own command line and the command says so (`QUICK_EXIT` in its module: it
+    has closed everything it opened), the process ends right after the command, without the
+    interpreter freeing every object one by one: after `run` that is the run's maps, graphs and
+    arrays (benchmarks/RESULTS.md, SLAM speed: 0.3-2 s of the whole process's time)."""
     _console_logging()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
+    code = _call(args)
+    if argv is None and getattr(args, "_quick_exit", False):
+        _exit_now(code)
+    return code
+
+
+def _call(args: argparse.Namespace) -> int:
     try:
         return int(args._run(args) or 0)
     except EurocSlamError as e:
@@ -126,6 +139,18 @@ def main(argv: list[str] | None = None) -> int:
             file=sys.stderr,
         )
         return 3
+
+
+def _exit_now(code: int) -> None:
+    """End the process with `code` once what it printed is out (logging's handlers flushed,
+    stdout and stderr written), skipping the interpreter's teardown."""
+    logging.shutdown()
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except (BrokenPipeError, OSError):
+        code = code or 1
+    os._exit(code)
 
 
 if __name__ == "__main__":

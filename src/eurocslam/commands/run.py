@@ -7,6 +7,9 @@ import sys
 
 NAME = "run"
 HELP = "stereo-inertial SLAM: OUT/run.mcap (sensor streams + estimate), trajectories, map"
+# `run` closes what it opens (extraction workers, the MCAP writer's thread, the live view): the
+# `eurocslam` process may end right after it, without freeing the run's objects one by one
+QUICK_EXIT = True
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -122,9 +125,8 @@ def _start_live(args: argparse.Namespace):  # type: ignore[no-untyped-def]
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from eurocslam.commands._args import source_options
     from eurocslam.config import VISUAL_ONLY, load_config, resolve_mode
-    from eurocslam.dataset import has_imu, open_sequence
+    from eurocslam.frontend.spawn import discard_early, start_early
 
     _check_live_args(args)
     if args.localize_only and not args.map:
@@ -132,14 +134,22 @@ def run(args: argparse.Namespace) -> int:
 
         raise EurocSlamError("--localize-only is an option of --map: add --map DIR")
     cfg = load_config(args.config)
-    if args.no_imu:
-        cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
-    source = open_sequence(args.sequence, **source_options(args, cfg.imu))
-    cfg = resolve_mode(cfg, has_imu(source), source.name)
-    live_sink = _start_live(args) if args.live else None
+    if cfg.frontend.prefetch:
+        # the extraction workers import numpy and OpenCV while this process imports the rest
+        start_early(cfg.frontend.prefetch_workers)
+    live_sink = None
     try:
+        from eurocslam.commands._args import source_options
+        from eurocslam.dataset import has_imu, open_sequence
+
+        if args.no_imu:
+            cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
+        source = open_sequence(args.sequence, **source_options(args, cfg.imu))
+        cfg = resolve_mode(cfg, has_imu(source), source.name)
+        live_sink = _start_live(args) if args.live else None
         return _run(args, cfg, source, live_sink)
     finally:  # also on Ctrl-C (the CLI reports it, exit 130) and on errors
+        discard_early()  # workers started early that no extraction took
         if live_sink is not None:
             live_sink.close()
 

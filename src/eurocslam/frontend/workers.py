@@ -8,9 +8,10 @@ worker process, round-robin; the worker rectifies, extracts ORB on both images a
 frame order. Frames that fail the image check (missing, blank, wrong size) and frames left out by
 `frontend.track_every` skip the workers.
 
-A worker is a `python -c` that ignores SIGINT before anything else and runs `_worker_main` on
-the socket FD (subprocess, not multiprocessing: a spawned multiprocessing child imports the
-caller's main module, which re-runs a script that lacks an `if __name__ == "__main__"` guard).
+A worker is a `python -c` (`frontend/spawn.py`, which starts them, early for `eurocslam run`)
+that ignores SIGINT before anything else and runs `_worker_main` on the socket FD (subprocess,
+not multiprocessing: a spawned multiprocessing child imports the caller's main module, which
+re-runs a script that lacks an `if __name__ == "__main__"` guard).
 Ctrl-C is the parent's to handle; a worker ends when its socket closes. The workers stay in the
 parent's session: in a session of their own, the kernel's autogroup scheduling would give them
 a share of the CPU equal to the whole main process's (measured: 3-10 % slower end to end).
@@ -25,12 +26,9 @@ features are the same either way.
 from __future__ import annotations
 
 import contextlib
-import os
 import pickle
 import queue
-import socket
 import subprocess
-import sys
 import threading
 import time
 import traceback
@@ -38,7 +36,6 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from multiprocessing import shared_memory
 from multiprocessing.connection import Connection
-from pathlib import Path
 
 import numpy as np
 
@@ -47,19 +44,12 @@ from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import SlamError
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import Extractor, FrameFeatures
+from eurocslam.frontend.spawn import package_dir, spawn, take
 from eurocslam.memory import peak_rss_mb
 
 SLOTS_PER_WORKER = 3  # frames in flight per worker: one being extracted, two waiting
 _POLL_S = 0.5  # how often a blocked wait checks that the other side is still there
 _START_TIMEOUT_S = 60.0  # a worker not ready by then (imports, shared memory) did not start
-# a worker's whole program: SIGINT ignored before the imports (a Ctrl-C right at the start would
-# print their tracebacks), then the loop on the socket whose descriptor is the argument
-_WORKER_COMMAND = (
-    "import signal; signal.signal(signal.SIGINT, signal.SIG_IGN); import sys; "
-    "from multiprocessing.connection import Connection; "
-    "from eurocslam.frontend.workers import _worker_main; "
-    "_worker_main(Connection(int(sys.argv[1])))"
-)
 
 
 @dataclass(frozen=True)
@@ -115,14 +105,18 @@ class _Setup:
 
 def _worker_main(conn: Connection) -> None:
     """A worker process: `_Setup` in, `_Ready` out; then (slot, t_ns) in, `FrameFeatures` (or
-    `_WorkerFailure`) out; None in, `_Done` out ends it."""
-    setup: _Setup = conn.recv()
+    `_WorkerFailure`) out; None in, `_Done` out ends it. A socket closed before the setup
+    (workers started early for a run that ended first) ends it quietly."""
+    try:
+        setup: _Setup = conn.recv()
+    except (EOFError, OSError):
+        return
     n_slots, shape = setup.n_slots, setup.shape
     extractor = Extractor(setup.rig, setup.config)
     shm = _attach(setup.shm_name)
     images = np.ndarray((n_slots, 2, *shape), np.uint8, buffer=shm.buf)
     try:
-        conn.send(_Ready(_package_dir()))
+        conn.send(_Ready(package_dir()))
         while (task := conn.recv()) is not None:
             slot, t_ns = task
             try:
@@ -137,24 +131,6 @@ def _worker_main(conn: Connection) -> None:
     finally:
         del images
         shm.close()
-
-
-def _package_dir() -> str:
-    import eurocslam
-
-    return str(Path(eurocslam.__file__).resolve().parent)
-
-
-def _worker_env() -> dict[str, str]:
-    """The environment of a worker: this process's, with the folder holding the eurocslam it
-    runs first on PYTHONPATH, so that a worker never imports another copy (an installed one
-    while this process runs a source tree)."""
-    env = dict(os.environ)
-    paths = [str(Path(_package_dir()).parent)]
-    if env.get("PYTHONPATH"):
-        paths.append(env["PYTHONPATH"])
-    env["PYTHONPATH"] = os.pathsep.join(paths)
-    return env
 
 
 def _attach(name: str) -> shared_memory.SharedMemory:
@@ -201,26 +177,15 @@ class ExtractionWorkers:
         # to the caller (a socket buffers a frame's features, so a worker can work ahead)
         self._conns: list[Connection] = []
         setup = _Setup(extractor.rig, extractor.config, self._shm.name, n_slots, self.shape)
-        env = _worker_env()
         try:
-            for _ in range(max(1, int(n_workers))):
-                mine, theirs = socket.socketpair()
-                with theirs:
-                    fd = theirs.fileno()
-                    self._procs.append(
-                        subprocess.Popen(
-                            [sys.executable, "-c", _WORKER_COMMAND, str(fd)],
-                            pass_fds=(fd,),
-                            stdin=subprocess.DEVNULL,
-                            env=env,
-                        )
-                    )
-                conn = Connection(mine.detach())
-                self._conns.append(conn)
+            n = max(1, int(n_workers))
+            started = take(n) or spawn(n)  # started early by `run`, or now
+            self._procs, self._conns = started.procs, started.conns
+            for conn, proc in zip(self._conns, self._procs, strict=True):
                 try:
                     conn.send(setup)
                 except OSError:  # it exited at once
-                    raise _not_started(self._procs[-1]) from None
+                    raise _not_started(proc) from None
             self._wait_ready()
         except BaseException:
             self.close()
@@ -233,7 +198,7 @@ class ExtractionWorkers:
         """Wait for every worker's `_Ready`; OSError if one does not start (its Python cannot
         import eurocslam, no shared memory, ...), so that the caller can extract inline."""
         deadline = time.monotonic() + _START_TIMEOUT_S
-        package = _package_dir()
+        package = package_dir()
         for conn, proc in zip(self._conns, self._procs, strict=True):
             try:
                 while not conn.poll(_POLL_S):
