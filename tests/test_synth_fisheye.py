@@ -175,3 +175,21 @@ def test_run_eval_and_convert_a_tumvi_folder(tumvi_seq: Path, tmp_path: Path) ->
     for a, b in ((back.cam0, rig.cam0), (back.cam1, rig.cam1)):
         assert a.distortion_model == "equidistant" and a.distortion == b.distortion
         np.testing.assert_array_equal(a.T_body_cam, b.T_body_cam)
+
+
+def test_run_with_focal_sized_rectification(tumvi_seq: Path, tmp_path: Path) -> None:
+    """`frontend.rectify_size: focal` (rectified images larger than the raw ones) runs through
+    the extraction workers, whose shared buffers hold raw images."""
+    import yaml
+
+    from eurocslam.cli import main
+    from eurocslam.io.trajectory_io import read_tum
+
+    cfg = tmp_path / "focal.yaml"
+    cfg.write_text(
+        yaml.safe_dump({"frontend": {"rectify_fov_deg": 120.0, "rectify_size": "focal"}})
+    )
+    out = tmp_path / "run"
+    args = ["run", str(tumvi_seq), "-o", str(out), "--no-progress", "--no-mcap"]
+    assert main([*args, "--config", str(cfg)]) == 0
+    assert len(read_tum(out / "trajectory_online.tum")) == 41
