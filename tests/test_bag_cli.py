@@ -192,7 +192,7 @@ def test_run_on_a_synthetic_sequence_packed_into_a_bag(tmp_path: Path) -> None:
     """`eurocslam synth` output (moving, exact ground truth) packed into a ROS 2 MCAP bag: `run`
     on the bag gives the trajectory `run` gives on the ASL folder, and it follows the ground
     truth carried in the bag."""
-    synth = pytest.importorskip("eurocslam.synth")
+    from eurocslam import synth
     from eurocslam.eval.align import umeyama
 
     asl_dir = synth.synthesize(synth.SynthSpec.tiny(seed=3), tmp_path / "syn", workers=1)

@@ -17,7 +17,11 @@ BURN = "import sys, time\nt = time.process_time()\nwhile time.process_time() - t
 
 def test_output_exit_code_and_usage(tmp_path: Path) -> None:
     log = tmp_path / "run.log"
-    code = BURN + "print('to stdout'); print('last words', file=sys.stderr); sys.exit(3)"
+    # stdout flushed before stderr is written: without PYTHONUNBUFFERED a redirected stdout is
+    # block-buffered and would reach the log after stderr's line, at exit
+    code = BURN + (
+        "print('to stdout', flush=True); print('last words', file=sys.stderr); sys.exit(3)"
+    )
     r = run_process([sys.executable, "-c", code], log)
     assert r.returncode == 3 and not r.timed_out
     text = log.read_text()

@@ -98,7 +98,6 @@ def test_reader_errors_are_one_stderr_line(
     damage: Callable[[Path], str],
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    pytest.importorskip("eurocslam.convert")
     expected = damage(seq / "mav0")
     out = tmp_path / "out.mcap"
     assert main(["convert", str(seq), "-o", str(out), "--no-progress"]) == 2

@@ -23,11 +23,9 @@ from a recorded file (`io.playback.play_mcap`). A user opens Foxglove, connects 
   viewer subscribes to it; the error is not passed on).
 - Time: the server has the `time` capability and broadcasts the data time, so the viewer's clock
   follows the data (EuRoC stamps), not the wall clock.
-- Playback control (`play` only, where the viewer supports it: today's Foxglove): the server
-  advertises the file's time range; pause, resume, speed and seek requests act on the pacing
-  clock and on the reader. Foxglove Studio 1.48 / Lichtblick have no such controls for
-  WebSocket sources; there `--rate` sets the speed. A seek or a loop moves the viewer's clock
-  (back), which Foxglove treats as a seek: it drops what it holds (`restart_at`).
+- Playback control (`play` only, where the viewer supports it): `live_control.PlaybackControl`.
+  A seek or a loop moves the viewer's clock (back), which Foxglove treats as a seek: it drops
+  what it holds (`restart_at`).
 - Clients: `n_clients` counts connected viewers (at the relay); `wait_for_client(timeout)`
   blocks until one is connected and subscribed.
 - Everything binds to 127.0.0.1 unless another host is given; `close()` stops the relay and the
@@ -42,6 +40,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from eurocslam.errors import OutputError
+from eurocslam.io.live_control import PlaybackControl
 from eurocslam.io.live_relay import Relay
 from eurocslam.io.pacing import PacingClock
 from eurocslam.io.qos import LATCHED_TOPICS
@@ -105,7 +104,6 @@ class LiveSink:
         self.stats = LiveStats()
         self._topics: dict[str, _Topic] = {}
         self._lock = threading.RLock()
-        self._seek_ns: int | None = None
         self._subscribed: dict[int, set[int]] = {}  # client id -> channel ids
         self._sub_cond = threading.Condition()
         self._last_sub_change = time.monotonic()
@@ -113,7 +111,7 @@ class LiveSink:
         self._closed = False
         self.recreated_channels = 0  # channels re-created after a refused subscription
         self._ctx = foxglove.Context()
-        self.playback_range_ns = playback_range_ns
+        self.playback = PlaybackControl(self.clock, playback_range_ns, self._broadcast_playback)
         try:
             self._server = foxglove.start_server(
                 name=name,
@@ -359,16 +357,9 @@ class LiveSink:
             self._last_sub_change = time.monotonic()
             self._sub_cond.notify_all()
 
-    # ---- playback control
-    def request_seek(self, t_ns: int) -> None:
-        with self._lock:
-            self._seek_ns = int(t_ns)
-        self.clock.reanchor()
-
-    def pop_seek(self) -> int | None:
-        with self._lock:
-            s, self._seek_ns = self._seek_ns, None
-            return s
+    # ---- playback control (`live_control.py`)
+    def _broadcast_playback(self, state: Any) -> None:
+        self._server.broadcast_playback_state(state)
 
     def restart_at(self, t_ns: int, *, announce: bool = True) -> None:
         """Playback jumps to `t_ns` (a seek, or the start again when looping): re-anchor the
@@ -378,35 +369,8 @@ class LiveSink:
         latched messages."""
         self.clock.reanchor()
         if announce:
-            self._broadcast_state(self._playing_status(), int(t_ns), did_seek=True)
+            self.playback.broadcast_state(self.playback.status(), int(t_ns), did_seek=True)
         self.replay_latched(int(t_ns))
-
-    def _playing_status(self) -> Any:
-        from foxglove.websocket import PlaybackStatus
-
-        return PlaybackStatus.Paused if self.clock.paused else PlaybackStatus.Playing
-
-    def _broadcast_state(self, status: Any, t_ns: int, *, did_seek: bool = False) -> None:
-        from foxglove.websocket import PlaybackState
-
-        if self.playback_range_ns is None:
-            return
-        self._server.broadcast_playback_state(
-            PlaybackState(
-                status=status,
-                current_time=int(t_ns),
-                playback_speed=float(self.clock.rate or 1.0),
-                did_seek=did_seek,
-                request_id=None,
-            )
-        )
-
-    def broadcast_ended(self) -> None:
-        from foxglove.websocket import PlaybackStatus
-
-        if self.playback_range_ns is not None:
-            end = self.clock.last_ns or self.playback_range_ns[1]
-            self._broadcast_state(PlaybackStatus.Ended, int(end))
 
     def close(self) -> None:
         if self._closed:
@@ -432,24 +396,4 @@ class _Listener:
         self.sink._on_unsubscribe(int(client.id), int(channel.id))
 
     def on_playback_control_request(self, request: Any) -> Any:
-        from foxglove.websocket import PlaybackCommand, PlaybackState, PlaybackStatus
-
-        clock = self.sink.clock
-        if request.playback_speed and request.playback_speed > 0:
-            clock.set_rate(float(request.playback_speed))
-        if request.seek_time is not None:
-            self.sink.request_seek(int(request.seek_time))
-        if request.playback_command == PlaybackCommand.Pause:
-            clock.pause()
-        elif request.playback_command == PlaybackCommand.Play:
-            clock.resume()
-        current = request.seek_time if request.seek_time is not None else clock.last_ns
-        if current is None:
-            current = self.sink.playback_range_ns[0] if self.sink.playback_range_ns else 0
-        return PlaybackState(
-            status=PlaybackStatus.Paused if clock.paused else PlaybackStatus.Playing,
-            current_time=int(current),
-            playback_speed=float(clock.rate or 1.0),
-            did_seek=request.seek_time is not None,
-            request_id=request.request_id,
-        )
+        return self.sink.playback.on_request(request)

@@ -124,7 +124,7 @@ def play_mcap(
     while True:
         seek: int | None = None
         for _schema, channel, message in _iter_messages(info.path, start):
-            s = sink.pop_seek()
+            s = sink.playback.pop_seek()
             if s is not None:
                 seek = s
                 break
@@ -151,7 +151,7 @@ def play_mcap(
             sink.restart_at(info.start_ns)
             continue
         res.finished = True
-        sink.broadcast_ended()
+        sink.playback.broadcast_ended()
         return res
 
 
