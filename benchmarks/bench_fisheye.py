@@ -17,6 +17,7 @@ image, stereo matches per frame, and the median depth of the matched points. One
 thread of OpenCV per call as the frontend uses it; compare rows of one run (a shared machine).
 
 usage: .venv/bin/python benchmarks/bench_fisheye.py [--replica DIR] [--fov 90,120,150]
+       [--size image|focal]
 """
 
 from __future__ import annotations
@@ -57,10 +58,10 @@ def raw_px_per_deg(cam: CameraCalib, theta: float) -> float:
     return float((b - a) / np.degrees(h))
 
 
-def geometry_row(rig: StereoRig, fov: float) -> dict[str, float]:
+def geometry_row(rig: StereoRig, fov: float, size: str) -> dict[str, float]:
     cam = rig.cam0
     w, h = cam.width, cam.height
-    r = StereoRectifier(rig, 0.0, fov)
+    r = StereoRectifier(rig, 0.0, fov, size)
     g = r.geometry
     u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
     raw_uv = np.column_stack([u.ravel(), v.ravel()])
@@ -81,6 +82,7 @@ def geometry_row(rig: StereoRig, fov: float) -> dict[str, float]:
     x_edge = (0.0 - g.cx) / g.fx
     return {
         "fov": r.rectification.fov_deg or fov,
+        "width": float(g.width),
         "cap": r.rectification.fov_limit_deg or float("nan"),
         "fx": g.fx,
         "pixels_kept": float(inside.sum() / valid.sum()),
@@ -91,9 +93,9 @@ def geometry_row(rig: StereoRig, fov: float) -> dict[str, float]:
     }
 
 
-def frame_rows(rig: StereoRig, fov: float, replica: Path, step: int) -> dict[str, float]:
+def frame_rows(fov: float, size: str, replica: Path, step: int) -> dict[str, float]:
     seq = open_sequence(replica, quiet=True)
-    ex = Extractor(seq.rig, FrontendConfig(rectify_fov_deg=fov))
+    ex = Extractor(seq.rig, FrontendConfig(rectify_fov_deg=fov, rectify_size=size))
     rect_ms, kps, matches, depths = [], [], [], []
     for k, fr in enumerate(seq.frames()):
         if k % step or fr.left is None or fr.right is None:
@@ -122,6 +124,9 @@ def main() -> int:
     ap.add_argument("--fov", default="90,105,120,135,150", help="fields of view [deg]")
     ap.add_argument("--replica", type=Path, help="a TUM-VI replica (synth --rig tumvi)")
     ap.add_argument("--step", type=int, default=20, help="every Nth frame of the replica")
+    ap.add_argument(
+        "--size", default="image", choices=("image", "focal"), help="frontend.rectify_size"
+    )
     args = ap.parse_args()
     fovs = [float(x) for x in args.fov.split(",")]
     rig = tumvi_rig()
@@ -130,22 +135,23 @@ def main() -> int:
         f"baseline {rig.baseline:.4f} m; raw centre {rig.cam0.fx * np.pi / 180:.2f} px/deg"
     )
     head = (
-        "| fov [deg] | fx [px] | raw pixels kept | solid angle kept | px/deg centre (raw 3.33) "
-        "| px/deg edge (raw there) |"
+        f"| fov [deg] ({args.size}) | fx [px] | raw pixels kept | solid angle kept "
+        "| px/deg centre (raw 3.33) | px/deg edge (raw there) |"
     )
     if args.replica:
         head += " rectify pair [ms] | ORB kept | stereo matches | median depth [m] |"
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
     for fov in fovs:
-        g = geometry_row(rig, fov)
+        g = geometry_row(rig, fov, args.size)
         row = (
-            f"| {g['fov']:.1f} | {g['fx']:.1f} | {100 * g['pixels_kept']:.1f} % | "
+            f"| {g['fov']:.1f} ({g['width']:.0f} px) | {g['fx']:.1f} | "
+            f"{100 * g['pixels_kept']:.1f} % | "
             f"{100 * g['solid_angle_kept']:.1f} % | {g['centre_px_per_deg']:.2f} | "
             f"{g['edge_px_per_deg']:.2f} ({g['raw_edge_px_per_deg']:.2f}) |"
         )
         if args.replica:
-            f = frame_rows(rig, fov, args.replica, args.step)
+            f = frame_rows(fov, args.size, args.replica, args.step)
             row += (
                 f" {f['rectify_ms']:.2f} | {f['keypoints']:.0f} | {f['stereo_matches']:.0f} | "
                 f"{f['median_depth_m']:.2f} |"
