@@ -163,3 +163,14 @@ def test_sigma_scale_is_the_resampling_stretch() -> None:
     assert r.sigma_scale(pts)[2] > 2.5  # the corner: a raw pixel over ~2.8 rectified ones
     wide = StereoRectifier(tumvi_rig(), 0.0, 150.0)
     assert wide.sigma_scale(pts[:1])[0] == 1.0  # downsampled centre: a rectified pixel
+
+
+def test_fov_zero_keeps_the_centres_focal_length() -> None:
+    from eurocslam.camera import centre_keeping_fov_deg
+
+    rig = tumvi_rig()
+    assert centre_keeping_fov_deg(rig) == pytest.approx(106.55, abs=0.01)
+    r = rectify_stereo(rig, fov_deg=0.0)
+    assert r.fov_deg == pytest.approx(106.55, abs=0.01)
+    assert r.geometry.fx == pytest.approx(rig.cam0.fx, rel=1e-9)
+    assert r.geometry.width == rig.cam0.width

@@ -124,13 +124,16 @@ def rectify_stereo(
 ) -> StereoRectification:
     """Rectify the stereo pair of `rig` (zero disparity at infinity): with `cv2.stereoRectify`
     and `alpha` for pinhole cameras, through the camera models to a pinhole of `fov_deg` degrees
-    (default `DEFAULT_RECTIFY_FOV_DEG`) and `rectified_size(size)` for others (a fisheye); a rig
+    (default `DEFAULT_RECTIFY_FOV_DEG`; 0: `centre_keeping_fov_deg`) and `rectified_size(size)`
+    for others (a fisheye); a rig
     that `is_rectified` already is passed through (`alpha`, `fov_deg`, `size` then change
     nothing)."""
     if is_rectified(rig):
         return _passthrough(rig, alpha)
     if not (rig.cam0.model.perspective and rig.cam1.model.perspective):
         fov = DEFAULT_RECTIFY_FOV_DEG if fov_deg is None else fov_deg
+        if fov == 0.0:
+            fov = centre_keeping_fov_deg(rig)
         return rectify_by_model(rig, fov, alpha, size)
     c0, c1 = rig.cam0, rig.cam1
     T_cam1_cam0 = rig.T_cam1_cam0
@@ -159,6 +162,14 @@ def rectify_stereo(
         T_body_rect0=c0.T_body_cam @ make_T(R1.T, np.zeros(3)),
     )
     return StereoRectification(float(alpha), R1, R2, P1, P2, geometry)
+
+
+def centre_keeping_fov_deg(rig: StereoRig) -> float:
+    """The horizontal field of view [deg] at which a pinhole as wide as cam0's image has cam0's
+    own focal length: the rectified image then neither magnifies nor shrinks the fisheye's
+    centre (TUM-VI: 106.6 degrees). `rectify_fov_deg: 0` asks for it."""
+    c0 = rig.cam0
+    return float(np.degrees(2.0 * np.arctan(c0.width / (2.0 * c0.fx))))
 
 
 def rectifying_rotations(T_cam1_cam0: F64) -> tuple[F64, F64]:
