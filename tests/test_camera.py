@@ -119,3 +119,58 @@ def test_fisheye_camera_info_is_equidistant() -> None:
     assert i1.P[0, 3] == pytest.approx(-rect.geometry.fx * rect.geometry.baseline)
     e0, _ = stereo_camera_infos(default_rig())
     assert e0.distortion_model == "plumb_bob" and len(e0.D) == 5
+
+
+def test_focal_sized_rectification_keeps_the_centres_resolution() -> None:
+    """`rectify_size: focal`: the rectified pinhole keeps cam0's focal length and its image
+    grows with the field of view; raw-size frames still pass the frontend's size check."""
+    from eurocslam.camera import rectified_size
+    from eurocslam.frontend.config import FrontendConfig
+    from eurocslam.frontend.extraction import Extractor
+
+    rig = tumvi_rig()
+    assert rectified_size(rig, 120.0, "image") == (512, 512)
+    assert rectified_size(rig, 120.0, "focal") == (662, 662)
+    r = StereoRectifier(rig, 0.0, 120.0, "focal")
+    g = r.geometry
+    assert (g.width, g.height) == (662, 662) and g.fx == pytest.approx(rig.cam0.fx, rel=2e-3)
+    assert r.rectify_left(np.zeros((512, 512), np.uint8)).shape == (662, 662)
+    p = _points_in_view(r, 50)
+    raw = r.rect0_to_raw(project_rect(p, g)[:, [0, 2]])
+    np.testing.assert_allclose(r.raw_to_rect0(raw), project_rect(p, g)[:, [0, 2]], atol=1e-8)
+    ex = Extractor(rig, FrontendConfig(rectify_fov_deg=120.0, rectify_size="focal"))
+    from eurocslam.dataset.types import StereoFrame
+
+    img = np.random.default_rng(0).integers(0, 255, (512, 512), dtype=np.uint8)
+    assert ex.frame_problem(StereoFrame(0, img, img)) is None
+    assert ex.frame_problem(StereoFrame(0, img[:500], img)) == "size"
+
+
+def test_sigma_scale_is_the_resampling_stretch() -> None:
+    """Rectified pixels per raw pixel: 1 for EuRoC's pinhole rig (unchanged weights), the
+    square root of the area ratio of the rect -> raw map for a fisheye, at least 1."""
+    uv = np.array([[10.0, 10.0], [300.0, 200.0]])
+    assert StereoRectifier(default_rig()).sigma_scale(uv).tolist() == [1.0, 1.0]
+    r = StereoRectifier(tumvi_rig(), 0.0, 90.0)
+    pts = np.array([[255.5, 255.5], [5.0, 255.5], [5.0, 5.0], [400.0, 100.0]])
+    h = 0.5
+    eu, ev = np.array([h, 0.0]), np.array([0.0, h])
+    du = (r.rect0_to_raw(pts + eu) - r.rect0_to_raw(pts - eu)) / (2 * h)
+    dv = (r.rect0_to_raw(pts + ev) - r.rect0_to_raw(pts - ev)) / (2 * h)
+    area = np.abs(du[:, 0] * dv[:, 1] - du[:, 1] * dv[:, 0])
+    np.testing.assert_allclose(r.sigma_scale(pts), np.maximum(1 / np.sqrt(area), 1), rtol=2e-2)
+    assert r.sigma_scale(pts)[0] == pytest.approx(256.0 / tumvi_rig().cam0.fx, rel=1e-2)
+    assert r.sigma_scale(pts)[2] > 2.5  # the corner: a raw pixel over ~2.8 rectified ones
+    wide = StereoRectifier(tumvi_rig(), 0.0, 150.0)
+    assert wide.sigma_scale(pts[:1])[0] == 1.0  # downsampled centre: a rectified pixel
+
+
+def test_fov_zero_keeps_the_centres_focal_length() -> None:
+    from eurocslam.camera import centre_keeping_fov_deg
+
+    rig = tumvi_rig()
+    assert centre_keeping_fov_deg(rig) == pytest.approx(106.55, abs=0.01)
+    r = rectify_stereo(rig, fov_deg=0.0)
+    assert r.fov_deg == pytest.approx(106.55, abs=0.01)
+    assert r.geometry.fx == pytest.approx(rig.cam0.fx, rel=1e-9)
+    assert r.geometry.width == rig.cam0.width

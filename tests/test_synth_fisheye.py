@@ -126,3 +126,70 @@ def test_replica_motion_puts_the_fisheye_where_eurocs_cam0_flies(euroc_dir: Path
         assert np.linalg.norm(a[:3, 3] - b[:3, 3]) < 2e-3
         dR = a[:3, :3].T @ b[:3, :3]
         assert np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))) < 0.2
+
+
+def test_run_eval_and_convert_a_tumvi_folder(tumvi_seq: Path, tmp_path: Path) -> None:
+    """`run` and `eval` take the TUM-VI folder with no flags; run.mcap's CameraInfo is the
+    fisheye's (equidistant, k1..k4, the rectification the run used) and its tf the rig's;
+    `convert` carries the calibration over (attachments) to a reader that gets the same rig."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from eurocslam.cli import main
+    from eurocslam.eval.evaluate import EvalConfig, evaluate
+    from eurocslam.eval.loaders import load_groundtruth
+    from eurocslam.io.ros2_calib import stereo_camera_infos
+    from eurocslam.io.trajectory_io import read_tum
+
+    out = tmp_path / "run"
+    assert main(["run", str(tumvi_seq), "-o", str(out), "--no-progress"]) == 0
+    online = read_tum(out / "trajectory_online.tum")
+    assert len(online) == 41  # a pose for every frame
+    gt = load_groundtruth(tumvi_seq)
+    assert gt.source.endswith("mocap0/data.csv")
+    ate = evaluate(gt.traj, read_tum(out / "trajectory_final.tum"), EvalConfig(align="se3"))
+    assert ate.ate_trans.rmse < 0.01
+    rig = open_sequence(tumvi_seq, quiet=True).rig
+    topics = ("/cam0/camera_info", "/cam1/camera_info")
+    want = dict(zip(topics, stereo_camera_infos(rig), strict=True))
+    seen: dict[str, object] = {}
+    frames: dict[str, np.ndarray] = {}
+    with open(out / "run.mcap", "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, ch, _, msg in reader.iter_decoded_messages(topics=[*want, "/tf_static"]):
+            if ch.topic == "/tf_static":
+                for t in msg.transforms:
+                    tr = t.transform.translation
+                    frames[t.child_frame_id] = np.array([tr.x, tr.y, tr.z])
+            else:
+                seen.setdefault(ch.topic, msg)
+    for topic, info in want.items():
+        msg = seen[topic]
+        assert msg.distortion_model == "equidistant"  # type: ignore[attr-defined]
+        np.testing.assert_array_equal(msg.d, info.D)  # type: ignore[attr-defined]
+        np.testing.assert_array_equal(np.reshape(msg.p, (3, 4)), info.P)  # type: ignore[attr-defined]
+    np.testing.assert_allclose(frames["cam1"], rig.cam1.T_body_cam[:3, 3])
+    mcap = tmp_path / "tumvi.mcap"
+    assert main(["convert", str(tumvi_seq), "-o", str(mcap)]) == 0
+    back = open_sequence(mcap, quiet=True).rig
+    for a, b in ((back.cam0, rig.cam0), (back.cam1, rig.cam1)):
+        assert a.distortion_model == "equidistant" and a.distortion == b.distortion
+        np.testing.assert_array_equal(a.T_body_cam, b.T_body_cam)
+
+
+def test_run_with_focal_sized_rectification(tumvi_seq: Path, tmp_path: Path) -> None:
+    """`frontend.rectify_size: focal` (rectified images larger than the raw ones) runs through
+    the extraction workers, whose shared buffers hold raw images."""
+    import yaml
+
+    from eurocslam.cli import main
+    from eurocslam.io.trajectory_io import read_tum
+
+    cfg = tmp_path / "focal.yaml"
+    cfg.write_text(
+        yaml.safe_dump({"frontend": {"rectify_fov_deg": 120.0, "rectify_size": "focal"}})
+    )
+    out = tmp_path / "run"
+    args = ["run", str(tumvi_seq), "-o", str(out), "--no-progress", "--no-mcap"]
+    assert main([*args, "--config", str(cfg)]) == 0
+    assert len(read_tum(out / "trajectory_online.tum")) == 41

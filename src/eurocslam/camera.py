@@ -120,17 +120,21 @@ DEFAULT_RECTIFY_FOV_DEG = 120.0
 
 
 def rectify_stereo(
-    rig: StereoRig, alpha: float = 0.0, fov_deg: float | None = None
+    rig: StereoRig, alpha: float = 0.0, fov_deg: float | None = None, size: str = "image"
 ) -> StereoRectification:
     """Rectify the stereo pair of `rig` (zero disparity at infinity): with `cv2.stereoRectify`
     and `alpha` for pinhole cameras, through the camera models to a pinhole of `fov_deg` degrees
-    (default `DEFAULT_RECTIFY_FOV_DEG`) for others (a fisheye); a rig that `is_rectified` already
-    is passed through (`alpha` and `fov_deg` then change nothing)."""
+    (default `DEFAULT_RECTIFY_FOV_DEG`; 0: `centre_keeping_fov_deg`) and `rectified_size(size)`
+    for others (a fisheye); a rig
+    that `is_rectified` already is passed through (`alpha`, `fov_deg`, `size` then change
+    nothing)."""
     if is_rectified(rig):
         return _passthrough(rig, alpha)
     if not (rig.cam0.model.perspective and rig.cam1.model.perspective):
         fov = DEFAULT_RECTIFY_FOV_DEG if fov_deg is None else fov_deg
-        return rectify_by_model(rig, fov, alpha)
+        if fov == 0.0:
+            fov = centre_keeping_fov_deg(rig)
+        return rectify_by_model(rig, fov, alpha, size)
     c0, c1 = rig.cam0, rig.cam1
     T_cam1_cam0 = rig.T_cam1_cam0
     r1, r2, p1, p2, _, _, _ = cv2.stereoRectify(
@@ -158,6 +162,14 @@ def rectify_stereo(
         T_body_rect0=c0.T_body_cam @ make_T(R1.T, np.zeros(3)),
     )
     return StereoRectification(float(alpha), R1, R2, P1, P2, geometry)
+
+
+def centre_keeping_fov_deg(rig: StereoRig) -> float:
+    """The horizontal field of view [deg] at which a pinhole as wide as cam0's image has cam0's
+    own focal length: the rectified image then neither magnifies nor shrinks the fisheye's
+    centre (TUM-VI: 106.6 degrees). `rectify_fov_deg: 0` asks for it."""
+    c0 = rig.cam0
+    return float(np.degrees(2.0 * np.arctan(c0.width / (2.0 * c0.fx))))
 
 
 def rectifying_rotations(T_cam1_cam0: F64) -> tuple[F64, F64]:
@@ -245,15 +257,35 @@ def widest_fov_deg(rig: StereoRig, R0: F64, R1: F64) -> float:
     return lo
 
 
-def rectify_by_model(rig: StereoRig, fov_deg: float, alpha: float = 0.0) -> StereoRectification:
+# how big the rectified image of a rig rectified through its models is (`rectified_size`)
+RECTIFY_SIZES = ("image", "focal")
+
+
+def rectified_size(rig: StereoRig, fov_deg: float, size: str) -> tuple[int, int]:
+    """The rectified image's width and height: "image", cam0's raw image size (the focal length
+    then follows from the field of view); "focal", the size at which the rectified pinhole keeps
+    cam0's own focal length (its centre's resolution), growing with the field of view."""
+    c0 = rig.cam0
+    if size == "image":
+        return c0.width, c0.height
+    if size != "focal":
+        raise ValueError(f"rectified size '{size}' unknown (known: {', '.join(RECTIFY_SIZES)})")
+    w = round(2.0 * c0.fx * np.tan(np.radians(fov_deg) / 2.0))
+    return w, round(w * c0.height / c0.width)
+
+
+def rectify_by_model(
+    rig: StereoRig, fov_deg: float, alpha: float = 0.0, size: str = "image"
+) -> StereoRectification:
     """Rectify through the camera models: Bouguet's rotations, a pinhole of `fov_deg` degrees
-    (capped at `widest_fov_deg`) for both rectified cameras."""
+    (capped at `widest_fov_deg`) for both rectified cameras, of `rectified_size(size)`."""
     c0 = rig.cam0
     T = rig.T_cam1_cam0
     R0, R1 = rectifying_rotations(T)
     limit = widest_fov_deg(rig, R0, R1)
     fov = min(float(fov_deg), limit)
-    P0 = fov_pinhole(fov, c0.width, c0.height)
+    width, height = rectified_size(rig, fov, size)
+    P0 = fov_pinhole(fov, width, height)
     t_rect = R1 @ T[:3, 3]  # cam0's origin in rect1: along -x by the baseline
     b = float(np.linalg.norm(t_rect))
     P1 = P0.copy()
@@ -264,8 +296,8 @@ def rectify_by_model(rig: StereoRig, fov_deg: float, alpha: float = 0.0) -> Ster
         cx=float(P0[0, 2]),
         cy=float(P0[1, 2]),
         baseline=b,
-        width=c0.width,
-        height=c0.height,
+        width=width,
+        height=height,
         T_body_rect0=c0.T_body_cam @ make_T(R0.T, np.zeros(3)),
     )
     return StereoRectification(float(alpha), R0, R1, P0, P1, geometry, False, fov, limit)

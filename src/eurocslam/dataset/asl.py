@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 
 from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.calib_sources import (
+    SENSOR_YAML,
     CalibrationSource,
     check_image_sizes,
     sequence_calibration,
@@ -501,6 +502,12 @@ class AslSequence(ImageFileFrames):
     @property
     def complete_entries(self) -> list[FrameEntry]:
         return [e for e in self.entries if e.left is not None and e.right is not None]
+
+    @property
+    def calibration_is_own(self) -> bool:
+        """The rig is the folder's own mav0/*/sensor.yaml (or one the caller gave)."""
+        src = self.calibration
+        return src is None or (src.kind == SENSOR_YAML and src.path == self.mav0)
 
     def sensor_yaml_paths(self) -> dict[str, Path]:
         out = {}
