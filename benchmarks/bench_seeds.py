@@ -20,7 +20,7 @@ against stored ones without running them again.
 
 usage: .venv/bin/python benchmarks/bench_seeds.py [--set dev|heldout | --seeds 0,1,2]
        [--sequences all|MH_04,V1_03] [--modes si,vo] [--duration 60] [--mcap]
-       [--json runs.json] [--report-only] NAME=REV[:ARGS] [NAME=REV[:ARGS] ...]
+       [--rig euroc|tumvi] [--json runs.json] [--report-only] NAME=REV[:ARGS] [...]
 """
 
 from __future__ import annotations
@@ -94,11 +94,15 @@ class Job:
     seq: str
     seed: int
     mode: str
+    rig: str = "euroc"
 
     def key(self, duration: float | None, mcap: bool) -> str:
         span = "full" if duration is None else f"{duration:g}s"
         args = " ".join(self.variant.args)
-        return f"{self.code}|{args}|{self.seq}|{span}|s{self.seed}|{self.mode}|mcap={int(mcap)}"
+        rig = f"|rig={self.rig}" if self.rig != "euroc" else ""
+        return (
+            f"{self.code}|{args}|{self.seq}|{span}|s{self.seed}|{self.mode}|mcap={int(mcap)}{rig}"
+        )
 
 
 class Store:
@@ -136,6 +140,12 @@ def main() -> int:
         "--cache", type=Path, default=Path(tempfile.gettempdir()) / "eurocslam_replicas"
     )
     ap.add_argument("--json", type=Path, help="keep every run here; reuse the runs it holds")
+    ap.add_argument(
+        "--rig",
+        choices=("euroc", "tumvi"),
+        default="euroc",
+        help="the replicas' rig: tumvi renders TUM-VI's stereo fisheye along the same motions",
+    )
     ap.add_argument("--report-only", action="store_true", help="only the runs in --json")
     args = ap.parse_args()
     variants = [parse_variant(t) for t in args.variants]
@@ -152,7 +162,7 @@ def main() -> int:
     store = Store(args.json)
     codes = {v.name: code_id(v.rev) for v in variants}
     jobs = [
-        Job(v, codes[v.name], s, seed, mode)
+        Job(v, codes[v.name], s, seed, mode, args.rig)
         for seed in seeds  # world after world: the replicas are rendered in that order
         for s in args.sequences
         for mode in args.modes
@@ -174,7 +184,7 @@ def main() -> int:
         ):
             for n, j in enumerate(todo, 1):
                 # rendered when its turn comes (about 1 GB per minute of data), not all first
-                seq = make_replica(j.seq, args.cache, duration, j.seed)
+                seq = make_replica(j.seq, args.cache, duration, j.seed, rig=j.rig)
                 v = Variant(j.variant.name, j.variant.rev, [*j.variant.args], j.variant.src)
                 if j.mode == "vo":
                     v.args.append("--no-imu")
@@ -196,6 +206,7 @@ def main() -> int:
     world_set = args.set if args.seeds is None else "given"
     print(
         f"# eurocslam run over worlds {'/'.join(map(str, seeds))} ({world_set}), {span}, "
+        f"{args.rig} rig, "
         f"{'MCAP' if args.mcap else 'no MCAP'}; variants: "
         + ", ".join(f"{v.name}={v.rev}@{codes[v.name][:12]} {' '.join(v.args)}" for v in variants)
     )

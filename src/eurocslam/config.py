@@ -46,6 +46,12 @@ class ImuConfig:
     accel_bias_walk_scale: float = 1.0
     integration_sigma: float = 1e-4  # continuous-time position integration noise
     max_gap_s: float = 0.05  # longer gaps between IMU samples count as an IMU dropout
+    # noise figures that replace the calibration's (None: the calibration's; a bag calibrated
+    # by its CameraInfo and /tf_static carries none, `dataset/imu_noise.py`)
+    gyroscope_noise_density: float | None = None  # rad/s/sqrt(Hz)
+    gyroscope_random_walk: float | None = None  # rad/s^2/sqrt(Hz)
+    accelerometer_noise_density: float | None = None  # m/s^2/sqrt(Hz)
+    accelerometer_random_walk: float | None = None  # m/s^3/sqrt(Hz)
 
 
 @dataclass(frozen=True)
@@ -216,6 +222,11 @@ _CHOICES = {
 
 
 def _coerce(value: Any, typ: Any, key: str, origin: str) -> Any:
+    args = typing.get_args(typ)
+    if type(None) in args:  # an optional value: null, or one of the other type
+        if value is None:
+            return None
+        (typ,) = (a for a in args if a is not type(None))
     if typ is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{origin}: key '{key}' must be true or false, got {value!r}")
@@ -318,6 +329,11 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
             "max_prediction_error_m",
         ),
     }
+    if prefix == "imu":
+        positive["imu"] += tuple(
+            f.name for f in fields(obj) if f.name.endswith(("_density", "_walk"))
+            and getattr(obj, f.name) is not None
+        )  # fmt: skip
     for name in positive.get(prefix, ()):
         if getattr(obj, name) <= 0:
             raise ConfigError(f"{origin}: key '{prefix}.{name}' must be > 0")

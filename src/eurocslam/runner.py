@@ -213,6 +213,8 @@ class _McapOutput:
                 t_start_ns=t0,
                 t_end_ns=t1,
                 rectify_alpha=cfg.frontend.rectify_alpha,  # CameraInfo R/P = the SLAM's
+                rectify_fov_deg=cfg.frontend.rectify_fov_deg,
+                rectify_size=cfg.frontend.rectify_size,
             ),
         )
         self.mcap = McapSink(folder / "run.mcap", compression=opt.compression)

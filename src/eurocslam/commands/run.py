@@ -144,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
 
         if args.no_imu:
             cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
-        source = open_sequence(args.sequence, **source_options(args))
+        source = open_sequence(args.sequence, **source_options(args, cfg.imu))
         cfg = resolve_mode(cfg, has_imu(source), source.name)
         live_sink = _start_live(args) if args.live else None
         return _run(args, cfg, source, live_sink)

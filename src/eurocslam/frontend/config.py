@@ -34,6 +34,16 @@ class FrontendConfig:
 
     # ---- stereo rectification and matching (stereo.py, matching.py) ----------------------
     rectify_alpha: float = 0.0  # cv2.stereoRectify alpha: 0 = only valid pixels
+    # a rig whose cameras are not pinholes (a fisheye) is rectified through its camera models to
+    # a pinhole of this horizontal field of view [deg], capped at the widest whose every pixel
+    # both cameras see (camera.rectify_by_model); 0: the field of view at which the rectified
+    # image keeps cam0's focal length (camera.centre_keeping_fov_deg: TUM-VI 106.6 deg); pinhole
+    # rigs take `rectify_alpha` instead
+    rectify_fov_deg: float = 120.0
+    # the rectified images' size for such a rig: "image", the raw image's (the focal length
+    # follows from the field of view); "focal", the size that keeps cam0's own focal length
+    # (the centre's resolution), growing with the field of view (camera.rectified_size)
+    rectify_size: str = "image"
     # the disparity window, from the rig: from `stereo_min_disparity_px` (the farthest points a
     # stereo match can measure; 1 px: 48 m on EuRoC, 386 m on KITTI) up to the disparity of a
     # point `stereo_min_depth_baselines` baselines away (fx / that: 218 px on EuRoC)
@@ -140,6 +150,8 @@ class FrontendConfig:
             ("track_radius_deg", 0 < self.track_radius_deg < 30),
             ("reuse_radius_deg", 0 < self.reuse_radius_deg < 30),
             ("rectify_alpha", 0.0 <= self.rectify_alpha <= 1.0),
+            ("rectify_fov_deg", self.rectify_fov_deg == 0 or 10 <= self.rectify_fov_deg < 180),
+            ("rectify_size", self.rectify_size in ("image", "focal")),
             ("stereo_ratio", 0 < self.stereo_ratio <= 1),
             ("track_ratio", 0 < self.track_ratio <= 1),
             ("min_tracked", self.min_tracked >= 6),

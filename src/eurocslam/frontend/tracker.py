@@ -562,6 +562,7 @@ class StereoTracker:
                 np.zeros(0)
                 if obs_kps is None
                 else self.scale[np.clip(ff.left.octave[obs_kps], 0, self.scale.size - 1)]
+                * self._rectifier.sigma_scale(ff.left.uv[obs_kps])  # a fisheye's resampling
             ),
             descriptors=(np.zeros((0, 32), np.uint8) if obs_kps is None else ff.left.desc[obs_kps]),
             octaves=np.zeros(0, np.int32) if obs_kps is None else ff.left.octave[obs_kps],

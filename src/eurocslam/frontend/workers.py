@@ -160,11 +160,11 @@ class ExtractionWorkers:
 
     def __init__(self, extractor: Extractor, n_workers: int) -> None:
         self.extractor = extractor
-        g = extractor.geometry
-        self.shape = (g.height, g.width)
+        c0 = extractor.rig.cam0  # the raw images' size (a fisheye's rectified ones may differ)
+        self.shape = (c0.height, c0.width)
         n_slots = SLOTS_PER_WORKER * max(1, int(n_workers))
         self._shm: shared_memory.SharedMemory | None = shared_memory.SharedMemory(
-            create=True, size=n_slots * 2 * g.height * g.width
+            create=True, size=n_slots * 2 * c0.height * c0.width
         )
         self._images = np.ndarray((n_slots, 2, *self.shape), np.uint8, buffer=self._shm.buf)
         self._free: queue.Queue[int] = queue.Queue()

@@ -1,5 +1,7 @@
-"""Which bag topic plays which role (cam0, cam1, imu, groundtruth, leica), and the message types a
-role accepts. Defaults cover EuRoC's ROS 1 bags and the MCAPs `eurocslam convert` writes."""
+"""Which bag topic plays which role (cam0, cam1, imu or accel + gyro, groundtruth, leica, and the
+cameras' CameraInfo), and the message types a role accepts. Defaults cover EuRoC's ROS 1 bags
+and the MCAPs `eurocslam convert` writes; other bags' topics are found by message type
+(`discovery`) or named with `--topic ROLE=TOPIC`."""
 
 from __future__ import annotations
 
@@ -9,14 +11,20 @@ from typing import Any
 
 from eurocslam.errors import DatasetError
 
-ROLES = ("cam0", "cam1", "imu", "groundtruth", "leica")
+ROLES = ("cam0", "cam1", "imu", "accel", "gyro", "groundtruth", "leica", "cam0_info", "cam1_info")
 REQUIRED_ROLES = ("cam0", "cam1")  # without an IMU topic the input is stereo-only
+IMU_ROLES = ("imu", "accel", "gyro")  # one united stream, or accelerometer and gyro apart
+INFO_ROLES = {"cam0": "cam0_info", "cam1": "cam1_info"}
 ROLE_ALIASES = {
     "cam0": "cam0", "left": "cam0",
     "cam1": "cam1", "right": "cam1",
     "imu": "imu", "imu0": "imu",
+    "accel": "accel", "accelerometer": "accel",
+    "gyro": "gyro", "gyroscope": "gyro",
     "groundtruth": "groundtruth", "gt": "groundtruth", "vicon": "groundtruth",
     "leica": "leica", "leica0": "leica",
+    "cam0_info": "cam0_info", "left_info": "cam0_info",
+    "cam1_info": "cam1_info", "right_info": "cam1_info",
 }  # fmt: skip
 
 EUROC_VICON_TOPIC = "/vicon/firefly_sbx/firefly_sbx"
@@ -26,15 +34,21 @@ EUROC_VICON_TOPIC = "/vicon/firefly_sbx/firefly_sbx"
 class TopicMap:
     """Which topic plays which role. Each role lists candidates; the first present one is used.
 
-    Defaults cover EuRoC's ROS 1 bags and the MCAPs `eurocslam convert` writes. A user-given
-    topic (`--topic cam0=/my/left`) replaces the candidates and must then be present.
+    Defaults cover EuRoC's ROS 1 bags and the MCAPs `eurocslam convert` writes; roles without
+    a default (accel, gyro, the CameraInfo topics) and cameras or IMU not under a default name
+    are found by message type (`discovery`). A user-given topic (`--topic cam0=/my/left`)
+    replaces the candidates and must then be present.
     """
 
     cam0: tuple[str, ...] = ("/cam0/image_raw", "/cam0/image_raw/compressed")
     cam1: tuple[str, ...] = ("/cam1/image_raw", "/cam1/image_raw/compressed")
     imu: tuple[str, ...] = ("/imu0",)
+    accel: tuple[str, ...] = ()
+    gyro: tuple[str, ...] = ()
     groundtruth: tuple[str, ...] = ("/groundtruth/pose", EUROC_VICON_TOPIC)
     leica: tuple[str, ...] = ("/leica0", "/leica/position")
+    cam0_info: tuple[str, ...] = ()
+    cam1_info: tuple[str, ...] = ()
     # roles the user set explicitly (then the topic must exist)
     explicit: frozenset[str] = frozenset()
 
@@ -71,7 +85,7 @@ class TopicMap:
         return cls().with_topics(mapping)
 
     def describe(self) -> str:
-        return ", ".join(f"{r}={'|'.join(self.candidates(r))}" for r in ROLES)
+        return ", ".join(f"{r}={'|'.join(self.candidates(r))}" for r in ROLES if self.candidates(r))
 
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -79,6 +93,8 @@ ROLE_TYPES: dict[str, tuple[str, ...]] = {
     "cam0": IMAGE_TYPES,
     "cam1": IMAGE_TYPES,
     "imu": ("sensor_msgs/msg/Imu",),
+    "accel": ("sensor_msgs/msg/Imu",),
+    "gyro": ("sensor_msgs/msg/Imu",),
     "groundtruth": (
         "geometry_msgs/msg/PoseStamped",
         "geometry_msgs/msg/TransformStamped",
@@ -86,6 +102,8 @@ ROLE_TYPES: dict[str, tuple[str, ...]] = {
         "nav_msgs/msg/Odometry",
     ),
     "leica": ("geometry_msgs/msg/PointStamped",),
+    "cam0_info": ("sensor_msgs/msg/CameraInfo",),
+    "cam1_info": ("sensor_msgs/msg/CameraInfo",),
 }
 
 
