@@ -161,7 +161,9 @@ class PlacesConfig:
     loop_min_correction_deg: float = 1.0
     # the gate (pipeline/places.py `loop_gate`): a correction is applied only when the drift it
     # measures is one the estimator's uncertainty allows, given the match's own (chi-square, 6
-    # DoF; 16.81: 99 %); refused loops are reported. The estimator's pose covariance is sampled
+    # DoF; 16.81: 99 %), and one the match tells from its own error (the same chi-square against
+    # the match's covariance alone must exceed it, `loop_significance`); refused loops are
+    # reported. The estimator's pose covariance is sampled
     # at a keyframe every `loop_covariance_every_s` (a marginal covariance costs about a fifth
     # of a smoother update: 2 s of the tracking thread per minute sampled every second) and at
     # the query when a loop reaches the gate; a candidate between samples takes the next one's
