@@ -13,9 +13,10 @@ from eurocslam.config import PlacesConfig
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import Extractor, pyramid_scales
+from eurocslam.geometry import inv_T, se3_log
 from eurocslam.pipeline.places import FrameBook, PlaceStage
 from eurocslam.places import default_vocabulary
-from eurocslam.places.recognizer import PlaceRecognizer, PlaceView
+from eurocslam.places.recognizer import CandidatePoints, PlaceMatch, PlaceRecognizer, PlaceView
 from eurocslam.synth import Scene
 from places_helpers import far_apart_frames, repetitive_scene
 
@@ -44,12 +45,12 @@ class Views:
     def T_world_body(self, k: int) -> np.ndarray:
         return self.scene.T_world_body(float(self.scene.t_s(self.scene.cam_t_ns[k])))
 
-    def points_world(self, v: PlaceView) -> np.ndarray:
+    def points_world(self, v: PlaceView) -> CandidatePoints:
         """The candidate's stereo points in the world, placed with its true pose."""
         T = self.T_world_body(v.key)
-        return v.p_body @ T[:3, :3].T + T[:3, 3]
+        return CandidatePoints(v.p_body @ T[:3, :3].T + T[:3, 3], T)
 
-    def verify(self, query: int, cand: int) -> tuple[np.ndarray, int] | None:
+    def verify(self, query: int, cand: int) -> PlaceMatch | None:
         c = self.view(cand)
         return self.recognizer.verify(self.view(query), c, self.points_world(c))
 
@@ -65,12 +66,18 @@ def test_a_revisit_is_verified_with_its_pose(tiled: Views) -> None:
     a, _ = far_apart_frames(tiled.scene)
     m = tiled.verify(a + 4, a)
     assert m is not None
-    T_est, inliers = m
+    T_est, inliers = m.T_world_query, m.n_inliers
     T_true = tiled.T_world_body(a + 4)
     assert inliers >= PlacesConfig().min_inliers
     assert np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]) < 0.01
     dR = T_est[:3, :3].T @ T_true[:3, :3]
     assert np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1))) < 0.5
+    # the match says how uncertain it is, and its error is one it allows (chi-square, 6 dof,
+    # 99.9 %): the loop gate weighs a loop by this
+    xi = se3_log(T_est @ inv_T(T_true))
+    assert np.all(np.linalg.eigvalsh(m.cov_world) > 0)
+    assert float(xi @ np.linalg.solve(m.cov_world, xi)) < 22.46
+    assert np.sqrt(np.trace(m.cov_world[3:, 3:])) < 0.02
 
 
 @pytest.mark.parametrize("start", [100, 300])
@@ -99,14 +106,16 @@ def test_points_without_a_position_take_no_part(tiled: Views) -> None:
     full = tiled.recognizer.verify(query, cand, pts)
     assert full is not None
     disparity = cand.stereo_uv[:, 0] - cand.stereo_uv[:, 1]
-    half = pts.copy()
+    half = pts.xyz.copy()
     half[disparity < np.median(disparity)] = np.nan
-    m = tiled.recognizer.verify(query, cand, half)
+    m = tiled.recognizer.verify(query, cand, CandidatePoints(half, pts.T_world_body))
     assert m is not None
-    T_est, inliers = m
-    assert PlacesConfig().min_inliers <= inliers < full[1]
-    assert np.linalg.norm(T_est[:3, 3] - tiled.T_world_body(a + 4)[:3, 3]) < 0.01
-    assert tiled.recognizer.verify(query, cand, np.full_like(pts, np.nan)) is None
+    assert PlacesConfig().min_inliers <= m.n_inliers < full.n_inliers
+    assert np.linalg.norm(m.T_world_query[:3, 3] - tiled.T_world_body(a + 4)[:3, 3]) < 0.01
+    # the far half left out: the match knows less
+    assert np.trace(m.cov_world) > np.trace(full.cov_world)
+    none = CandidatePoints(np.full_like(pts.xyz, np.nan), pts.T_world_body)
+    assert tiled.recognizer.verify(query, cand, none) is None
 
 
 @pytest.mark.parametrize(("baselines", "found"), [(40.0, True), (1e-3, False)])

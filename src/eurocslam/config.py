@@ -165,12 +165,17 @@ class PlacesConfig:
     loop_agree_deg: float = 1.0
     loop_min_correction_m: float = 0.1
     loop_min_correction_deg: float = 1.0
-    # a correction needs this many verified inliers in each agreeing keyframe's match. Measured
-    # against ground truth (benchmarks/bench_loops.py): with 40-59 inliers a loop's drift is off
-    # by up to 0.5-2 deg (90th percentile; MH_03 and V1_01 stereo-inertial, MH_04 visual-only),
-    # and two consecutive keyframes can agree on the same wrong drift (1.1 deg where the
-    # estimate had drifted 0.07-0.31); with 60 or more, 0.25-0.3 deg
-    loop_correct_min_inliers: int = 60
+    # the gate (pipeline/places.py `loop_gate`): a correction is applied only when the drift it
+    # measures is one the estimator's uncertainty allows, given the match's own (chi-square, 6
+    # DoF; 16.81: 99 %), and one the match tells from its own error (the same chi-square against
+    # the match's covariance alone must exceed it, `loop_significance`); refused loops are
+    # reported. The estimator's pose covariance is sampled
+    # at a keyframe every `loop_covariance_every_s` (a marginal covariance costs about a fifth
+    # of a smoother update: 2 s of the tracking thread per minute sampled every second) and at
+    # the query when a loop reaches the gate; a candidate between samples takes the next one's
+    # (the larger: the stricter gate)
+    loop_gate_chi2: float = 16.81
+    loop_covariance_every_s: float = 5.0
     # act on such a loop online: move the estimate onto the old map (the smoother restarts from
     # the moved state, the tracker's map moves with it) and give the final batch the loop edge;
     # off: loops are recognised and reported, and closed by map reuse in the final batch
@@ -319,6 +324,8 @@ def _check_ranges(obj: Any, prefix: str, origin: str) -> None:
             "loop_consistency",
             "loop_agree_m",
             "loop_agree_deg",
+            "loop_gate_chi2",
+            "loop_covariance_every_s",
             "relocalize_max_s",
         ),
         "health": (

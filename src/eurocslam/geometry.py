@@ -195,3 +195,31 @@ def rotation_between(a: F64, b: F64) -> F64:
         return so3_exp(axis / np.linalg.norm(axis) * np.pi)
     k = skew(v)
     return np.eye(3) + k + k @ k / (1.0 + c)
+
+
+# ---- SE(3) tangent space: [rotation, translation] (GTSAM's Pose3 order) ----------------------
+def se3_adjoint(T: F64) -> F64:
+    """Adjoint (6, 6) of a rigid transform in [rotation, translation] order:
+    `T @ exp(xi) = exp(Ad(T) @ xi) @ T`, so a covariance of a right (body-frame) perturbation
+    becomes one of a left (world-frame) perturbation as `Ad @ cov @ Ad.T`."""
+    R, t = T[:3, :3], T[:3, 3]
+    A = np.zeros((6, 6))
+    A[:3, :3] = R
+    A[3:, :3] = skew(t) @ R
+    A[3:, 3:] = R
+    return A
+
+
+def se3_log(T: F64) -> F64:
+    """The twist (6,) [rotation vector, translation part] with `exp(twist) = T`."""
+    w = so3_log(T[:3, :3])
+    th = float(np.linalg.norm(w))
+    W = skew(w)
+    if th < 1e-9:
+        V_inv = np.eye(3) - 0.5 * W
+    else:
+        half = th / 2.0
+        V_inv = (
+            np.eye(3) - 0.5 * W + (1.0 - half * np.cos(half) / np.sin(half)) / (th * th) * (W @ W)
+        )
+    return np.concatenate([w, V_inv @ T[:3, 3]])

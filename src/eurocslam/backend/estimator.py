@@ -51,7 +51,7 @@ from eurocslam.camera import RectifiedStereo
 from eurocslam.config import RunConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
-from eurocslam.geometry import F64, inv_T
+from eurocslam.geometry import F64, inv_T, se3_adjoint
 
 
 class KeyframeEstimator:
@@ -90,6 +90,9 @@ class KeyframeEstimator:
         # estimate was moved (`reanchor`), its pose before (for the final batch's start)
         self._loops: list[LoopEdge] = []
         self._before: dict[int, F64] = {}
+        # added to the smoother's covariance after a loop moved the estimate: the new smoother
+        # starts from a prior, the moved pose is as uncertain as the loop made it
+        self._cov_offset = np.zeros((6, 6))
 
     # ---- setup ----------------------------------------------------------------------------------
     def _make_smoother(self) -> None:
@@ -320,14 +323,36 @@ class KeyframeEstimator:
             scale * np.array([b.place_rot_sigma] * 3 + [b.place_pos_sigma] * 3)
         )
 
+    # ---- uncertainty ----------------------------------------------------------------------------
+    def pose_covariance(self) -> F64 | None:
+        """The latest keyframe's pose covariance (6, 6) in the world frame: a left perturbation,
+        [rotation, translation], from the smoother's marginal (which holds what the keyframes
+        it marginalised knew). It grows where nothing observes the pose: with an IMU yaw and
+        position, visual-only every direction. None where GTSAM cannot give it."""
+        st = self._state
+        assert st is not None
+        try:
+            if self._smoother is not None:
+                cov = self._smoother.marginalCovariance(X(self._k))
+            else:
+                assert self._isam is not None
+                cov = self._isam.marginalCovariance(X(self._k))
+        except RuntimeError:
+            return None
+        A = se3_adjoint(st.T_world_body)
+        return np.asarray(A @ cov @ A.T + self._cov_offset, dtype=np.float64)
+
     # ---- loop closure ---------------------------------------------------------------------------
-    def reanchor(self, D: F64, loop: LoopEdge | None = None) -> KeyframeUpdate:
+    def reanchor(
+        self, D: F64, loop: LoopEdge | None = None, cov_after: F64 | None = None
+    ) -> KeyframeUpdate:
         """Move the estimate at the latest keyframe by `D` (corrected world <- drifted world),
         as a loop closure found it: a new smoother starts at the moved state (its pose, velocity
         and biases held by priors), the landmarks it held are moved with it, and the segment's
         graph keeps everything before plus the loop edge (`loop`, when its keyframe is in this
         segment) for the final batch, which starts from the keyframes spread over the loop
-        (`pose_graph.spread_loops`)."""
+        (`pose_graph.spread_loops`). `cov_after`: the moved pose's covariance (world frame,
+        as `pose_covariance`), from which later covariances grow."""
         st = self._state
         assert st is not None
         k = self._k
@@ -375,7 +400,13 @@ class KeyframeEstimator:
         self._window = []
         self._update_smoother(graph, values, stamps)
         self._state = moved
-        return self._read_state(k, st.t_ns)
+        update = self._read_state(k, st.t_ns)
+        if cov_after is not None:
+            self._cov_offset = np.zeros((6, 6))
+            cov_prior = self.pose_covariance()
+            if cov_prior is not None:
+                self._cov_offset = cov_after - cov_prior
+        return update
 
     def _add_loose_link(self, k: int, dt: float, graph: gtsam.NonlinearFactorGraph) -> None:
         """No usable IMU between k-1 and k: bias random walk and a loose velocity link (vision

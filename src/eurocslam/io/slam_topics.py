@@ -16,7 +16,7 @@ the frame's time):
 | /slam/velocity | std_msgs/Float64MultiArray | world velocity xyz [m/s], speed |
 | /slam/position_error | std_msgs/Float64MultiArray | estimate - aligned GT: xyz, norm [m] |
 | /groundtruth/drone | visualization_msgs/MarkerArray | the Firefly on `gt_body` (green) |
-| /slam/places | visualization_msgs/MarkerArray | loops, relocalizations, merges (`PLACE_RGBA`) |
+| /slam/places | visualization_msgs/MarkerArray | loops, relocalizations, merges, refused loops |
 
 A frame left out by `frontend.track_every` has no /slam/features and no /slam/stats (nothing
 was counted; plots join the tracked frames).
@@ -67,6 +67,8 @@ PLACE_RGBA = {
     "loop": (1.0, 0.2, 0.9, 1.0),
     "relocalization": (0.2, 0.8, 1.0, 1.0),
     "merge": (1.0, 0.9, 0.1, 1.0),
+    # a loop the gate refused: recognised, its drift one the estimate cannot have (nothing moved)
+    "loop_refused": (0.55, 0.55, 0.55, 1.0),
 }
 TRACKED_RGBA = (0.1, 1.0, 0.2, 1.0)
 UNTRACKED_RGBA = (1.0, 0.55, 0.0, 1.0)
@@ -244,15 +246,16 @@ class SlamMcapWriter:
     def _write_places(self, t: int, out: FrameOutput) -> None:
         markers = []
         for ev in out.places:
+            ns = "loop_refused" if ev.refused else ev.kind
             markers.append(
                 ros2.Marker(
                     t,
                     WORLD,
-                    ev.kind,
+                    ns,
                     self._n_places,
                     5,  # LINE_LIST
                     scale=(0.02, 0.0, 0.0),
-                    color=PLACE_RGBA.get(ev.kind, (1.0, 1.0, 1.0, 1.0)),
+                    color=PLACE_RGBA.get(ns, (1.0, 1.0, 1.0, 1.0)),
                     points=np.array([ev.p_query, ev.p_match]),
                 )
             )

@@ -48,7 +48,13 @@ from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingStat
 from eurocslam.geometry import F64, inv_T
 from eurocslam.maps.store import SavedMap
 from eurocslam.memory import peak_rss_mb, usable_cores
-from eurocslam.pipeline.places import FrameBook, LoopFix, PlaceEvent, PlaceStage
+from eurocslam.pipeline.places import (
+    FrameBook,
+    LoopFix,
+    PlaceEvent,
+    PlaceStage,
+    yaw_and_translation,
+)
 from eurocslam.pipeline.records import (
     FrameObserver,
     FrameOutput,
@@ -129,6 +135,7 @@ class SlamPipeline(Startup):
         self._n_active = 0  # landmarks in the smoother
         self._kf_path: list[tuple[int, F64]] = []  # keyframes: time, latest smoothed pose
         self._tracked_offset: F64 | None = None  # last tracked pose @ inv(its prediction)
+        self._cov_sampled_t = -(1 << 62)  # the last keyframe whose covariance was sampled
 
     def _file_prior_map(self, prior: PriorMap) -> None:
         """The earlier map as segment 0 (no frames): its keyframes in the place database, its
@@ -438,10 +445,15 @@ class SlamPipeline(Startup):
             p.update_pose(seg, k, T)
         view = p.view(t, fr.stereo_uv, fr.descriptors, p.new_key(), fr.landmark_ids, fr.octaves)
         if p.merge(view, seg, upd.nav.T_world_body) is None:
-            fix = p.loop(view, seg, upd.nav.T_world_body)
+            fix = p.loop(view, seg, upd.nav.T_world_body, self.est.pose_covariance, upd.index)
             if fix is not None:
                 upd = self._close_loop(fix, upd)
-        p.file(view, seg, upd.index, upd.nav.T_world_body)
+        # the estimator's uncertainty, sampled for the loop gate (`PlaceStage.loop`)
+        cov = None
+        if (t - self._cov_sampled_t) * 1e-9 >= self.cfg.places.loop_covariance_every_s:
+            cov = self.est.pose_covariance()
+            self._cov_sampled_t = t
+        p.file(view, seg, upd.index, upd.nav.T_world_body, cov)
         return upd
 
     def _close_loop(self, fix: LoopFix, upd: KeyframeUpdate) -> KeyframeUpdate:
@@ -455,11 +467,14 @@ class SlamPipeline(Startup):
             if ref.segment == self.segment.index
             else None
         )
+        D = fix.D
+        if self.cfg.inertial:  # roll and pitch are observed: the loop moves yaw and position
+            D = yaw_and_translation(D, upd.nav.T_world_body[:3, 3])
         try:
-            moved = self.est.reanchor(fix.D, edge)
+            moved = self.est.reanchor(D, edge, fix.cov_after)
         except EstimatorFailure:
             return upd  # the estimate stays where it was; map reuse may still close the loop
-        self.tracker.apply(MapCorrection(moved.nav.T_world_body, T_new_old=fix.D))
+        self.tracker.apply(MapCorrection(moved.nav.T_world_body, T_new_old=D))
         return moved
 
     def _map_points(self, segment: int, ids: np.ndarray) -> F64:

@@ -118,11 +118,13 @@ class RunSummary:
             return []
         loops = [e for e in self.places if e.kind == "loop"]
         moved = [e for e in loops if e.correction_m > 0 or e.correction_deg > 0]
+        refused = [e for e in loops if e.refused]
         n_reloc = sum(1 for e in self.places if e.kind == "relocalization")
         n_merge = sum(1 for e in self.places if e.kind == "merge")
         d = self.place_db
+        gate = f", {len(refused)} refused by the gate" if refused else ""
         return [
-            f"places: {len(loops)} loop(s) recognised ({len(moved)} corrected), {n_reloc} "
+            f"places: {len(loops)} loop(s) recognised ({len(moved)} corrected{gate}), {n_reloc} "
             f"relocalization(s), {n_merge} merge(s); database {d['keyframes']:.0f} keyframes, "
             f"{d['memory_mb']:.1f} MB ({d['memory_kb_per_keyframe']:.1f} kB each), query "
             f"{d['query_ms_mean']:.2f} ms, verification {d['verify_ms_mean']:.1f} ms (mean)"

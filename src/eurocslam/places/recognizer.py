@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 
 import cv2
@@ -32,6 +32,7 @@ from eurocslam.frontend.features import Features
 from eurocslam.frontend.tracking import optimize_pose, pnp_ransac, project_map, search_by_projection
 from eurocslam.geometry import F64, inv_T
 from eurocslam.places.database import KeyframeDatabase
+from eurocslam.places.uncertainty import match_covariance, stereo_point_cov
 from eurocslam.places.vocabulary import BowVector, Vocabulary
 
 U8 = NDArray[np.uint8]
@@ -58,13 +59,24 @@ class PlaceView:
 
 
 @dataclass(frozen=True)
+class CandidatePoints:
+    """A candidate keyframe's points in the world a match is wanted in, and its pose there."""
+
+    xyz: F64  # (N, 3), rows of the candidate's view; NaN: the point takes no part
+    T_world_body: F64
+
+
+@dataclass(frozen=True)
 class PlaceMatch:
-    """A verified place: the query's body pose in the world the candidate's points were in."""
+    """A verified place: the query's body pose in the world the candidate's points were in,
+    and how uncertain it is (`places/uncertainty.py`: a left perturbation in that world,
+    [rotation, translation])."""
 
     key: int  # the candidate's key
     score: float  # its appearance score
     T_world_query: F64
     n_inliers: int
+    cov_world: F64  # (6, 6)
 
 
 class PlaceRecognizer:
@@ -132,13 +144,15 @@ class PlaceRecognizer:
         self,
         query: PlaceView,
         accept: Callable[[int], bool],
-        points: Callable[[PlaceView], F64],
+        points: Callable[[PlaceView], CandidatePoints],
         exclude_last: int = 0,
+        min_score: float = 0.0,
     ) -> PlaceMatch | None:
         """The best verified candidate among the keys `accept` admits (None: no place);
-        `points(candidate view)`: its points (N, 3) in the world the match is wanted in, asked
-        for only when the descriptors match well enough for the geometry to be tried (most
-        candidates fail before: MH_04 replica, 738 of 847)."""
+        `points(candidate view)`: its points and pose in the world the match is wanted in,
+        asked for only when the descriptors match well enough for the geometry to be tried
+        (most candidates fail before: MH_04 replica, 738 of 847). `min_score`: candidates
+        scoring lower are not verified (at least `places.min_score`)."""
         c = self.cfg
         for cand in self.db.query(
             query.bow,
@@ -146,22 +160,22 @@ class PlaceRecognizer:
             exclude=(query.key,),
             exclude_last=exclude_last,
             accept=accept,
-            min_score=c.min_score,
+            min_score=max(c.min_score, min_score),
         ):
             v = self._views[cand.key]
             m = self._timed(query, v, partial(points, v))
             if m is not None:
-                return PlaceMatch(cand.key, cand.score, m[0], m[1])
+                return replace(m, score=cand.score)
         return None
 
-    def verify(self, query: PlaceView, cand: PlaceView, pts_world: F64) -> tuple[F64, int] | None:
-        """(T_world_query, inliers) when the query's keypoints see the candidate's points
-        `pts_world` (rows of `cand`; rows that are NaN take no part)."""
-        return self._timed(query, cand, lambda: pts_world)
+    def verify(self, query: PlaceView, cand: PlaceView, pts: CandidatePoints) -> PlaceMatch | None:
+        """The match when the query's keypoints see the candidate's points `pts` (rows of
+        `cand`; rows that are NaN take no part); its score is NaN (no database query)."""
+        return self._timed(query, cand, lambda: pts)
 
     def _timed(
-        self, query: PlaceView, cand: PlaceView, points: Callable[[], F64]
-    ) -> tuple[F64, int] | None:
+        self, query: PlaceView, cand: PlaceView, points: Callable[[], CandidatePoints]
+    ) -> PlaceMatch | None:
         t0 = time.perf_counter()
         try:
             matches = self._descriptor_matches(query, cand)
@@ -194,12 +208,13 @@ class PlaceRecognizer:
         self,
         query: PlaceView,
         cand: PlaceView,
-        pts_world: F64,
+        pts: CandidatePoints,
         q: NDArray[np.intp],
         k: NDArray[np.intp],
-    ) -> tuple[F64, int] | None:
+    ) -> PlaceMatch | None:
         """The geometry of descriptor matches `q` (query rows) <-> `k` (candidate rows)."""
         c, g = self.cfg, self.geometry
+        pts_world = pts.xyz
         placed = np.isfinite(pts_world[k]).all(axis=1)  # points without a position: no part
         q, k = q[placed], k[placed]
         if q.size < c.min_inliers:
@@ -248,4 +263,20 @@ class PlaceRecognizer:
             n = int(inl2.sum())
             if n < c.min_inliers:
                 return None
-        return inv_T(g.T_body_rect0 @ T_rc), n
+        # the fit's uncertainty: the inliers' pixels, and the candidate's points as its own
+        # stereo pair measured them (a map landmark seen more often is known better: this
+        # errs on the side of a wider match)
+        rows, kps = rows[inl2], kps[inl2]
+        R_world_rect = pts.T_world_body[:3, :3] @ g.T_body_rect0[:3, :3]
+        cov_pts = stereo_point_cov(
+            cand.stereo_uv[rows], self.scales[np.clip(cand.octave[rows], 0, oct_max)], g
+        )
+        cov = match_covariance(
+            T_rc,
+            pts_world[rows],
+            R_world_rect @ cov_pts @ R_world_rect.T,
+            query.stereo_uv[kps],
+            sigma[inl2],
+            g,
+        )
+        return PlaceMatch(cand.key, float("nan"), inv_T(g.T_body_rect0 @ T_rc), n, cov)
