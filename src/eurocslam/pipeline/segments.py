@@ -34,6 +34,19 @@ class Segment:
         """(t_ns, reference keyframe) of every frame, as the estimator's `finish` takes them."""
         return [(r.t_ns, r.ref_kf) for r in self.records]
 
+    def landmark_positions(self, ids: np.ndarray) -> F64:
+        """The final batch's positions (N, 3) of landmarks by id (NaN: not in it, or the
+        segment has not ended)."""
+        out = np.full((len(ids), 3), np.nan)
+        sol = self.solution
+        if sol is not None and len(sol.landmark_ids):
+            order = np.argsort(sol.landmark_ids)
+            sid = sol.landmark_ids[order]
+            j = np.clip(np.searchsorted(sid, ids), 0, len(sid) - 1)
+            hit = sid[j] == ids
+            out[hit] = sol.landmarks[order[j[hit]]]
+        return out
+
     def final_poses(self) -> list[F64]:
         """Every frame's final pose (its online chain pose before the final batch)."""
         sol = self.solution

@@ -69,6 +69,15 @@ class PriorMap:
         if why is not None:
             raise MapError(f"{meta}: built with another camera rig ({why})")
 
+    def summary(self) -> dict[str, object]:
+        """What the run's summary says of the map it started from."""
+        return {
+            "path": str(self.path),
+            "keyframes": len(self.map.keyframes),
+            "landmarks": int(self.map.landmark_id.size),
+            "load_s": round(self.load_s, 3),
+        }
+
     def solution(self) -> SegmentSolution:
         """The map's landmarks as the map segment's solution (what `map_points` reads)."""
         m = self.map

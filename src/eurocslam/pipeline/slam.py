@@ -1,11 +1,10 @@
 """The SLAM pipeline's state machine: frames in, one `FrameOutput` per frame out.
 
-Stages, each behind a typed record: extraction (`FeatureStream`: `StereoFrame` ->
-`FrameFeatures`, in worker processes) -> tracking (`StereoTracker.track` -> `FrontendResult`;
-corrections go back as one `MapCorrection`) -> estimator (`KeyframeEstimator`: `KeyframeUpdate`
-per keyframe, `SegmentSolution` per segment) -> observers (`on_frame(frame, FrameOutput)`).
-Place recognition (`PlaceStage`) sees every keyframe and every lost frame. The mode
-(stereo-inertial or visual-only) is the configuration's, resolved once.
+Stages, each behind a typed record: extraction (`FeatureStream` -> `FrameFeatures`, in worker
+processes) -> tracking (`StereoTracker` -> `FrontendResult`; corrections go back as one
+`MapCorrection`) -> estimator (`KeyframeEstimator` -> `KeyframeUpdate`, `SegmentSolution`) ->
+observers (`on_frame(frame, FrameOutput)`); place recognition (`PlaceStage`) sees every
+keyframe and every lost frame.
 
 States (`PipelineState`):
 
@@ -149,12 +148,7 @@ class SlamPipeline(Startup):
         self.segments.append(seg)
         self.frames.new_segment()
         self.places.file_saved(prior.map.keyframes, MAP_SEGMENT)
-        self.summary.prior_map = {
-            "path": str(prior.path),
-            "keyframes": len(prior.map.keyframes),
-            "landmarks": int(prior.map.landmark_id.size),
-            "load_s": round(prior.load_s, 3),
-        }
+        self.summary.prior_map = prior.summary()
 
     def saved_map(self) -> SavedMap | None:
         """The run's map for later sessions (after `run`); None without place recognition."""
@@ -165,14 +159,9 @@ class SlamPipeline(Startup):
             C = self.frames.T_frame_seg[segment]
             return self._map_points(segment, ids) @ C[:3, :3].T + C[:3, 3]
 
+        src, n = self.source, len(self.segments)
         return build_map(
-            self.places,
-            len(self.segments),
-            points_in_frame,
-            self.prior_map,
-            self.source.name,
-            self.source.rig,
-            self.cfg.mode,
+            self.places, n, points_in_frame, self.prior_map, src.name, src.rig, self.cfg.mode
         )
 
     def _finish_segment(self) -> None:
@@ -483,15 +472,7 @@ class SlamPipeline(Startup):
         ended one."""
         if segment == self.segment.index and self.segment.solution is None:
             return self.est.landmark_positions(ids)
-        out = np.full((len(ids), 3), np.nan)
-        sol = self.segments[segment].solution
-        if sol is not None and len(sol.landmark_ids):
-            order = np.argsort(sol.landmark_ids)
-            sid = sol.landmark_ids[order]
-            j = np.clip(np.searchsorted(sid, ids), 0, len(sid) - 1)
-            hit = sid[j] == ids
-            out[hit] = sol.landmarks[order[j[hit]]]
-        return out
+        return self.segments[segment].landmark_positions(ids)
 
     def _plausible(self, t: int, T_pred: F64, T_new: F64) -> Verdict:
         """`Health.motion` of a tracked or smoothed pose at `t`."""
