@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -35,6 +36,8 @@ import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+
+from scipy.stats import t as student_t
 
 from bench_ab import Variant, checked_out, parse_variant, run_once
 from bench_slam import EXE, REPO, SEQUENCES, make_replica
@@ -288,12 +291,55 @@ def gate(
                 print(f"- {v.name}: {'ok  ' if ok else 'FAIL'} {line}")
                 if not ok:
                     failures.append(line)
+        for mode in modes:
+            for key, what in (("ate_mm", "final"), ("online_mm", "online")):
+                print(
+                    f"  {MODES[mode]} {what}: "
+                    + paired(results, first, v.name, mode, key, sequences)
+                )
         complete = len(sequences) == len(SEQUENCES) and len(modes) == len(MODES) and n_worlds >= 3
         verdict = "holds" if not failures else f"fails ({len(failures)} of {2 * len(modes)})"
         print(
             f"**{v.name}: the gate {verdict}**"
             + ("" if complete else " (not the whole protocol: 11 replicas, 3 worlds, both modes)")
         )
+
+
+def paired(
+    results: dict[tuple[str, str, str], list[Run]],
+    first: str,
+    name: str,
+    mode: str,
+    key: str,
+    sequences: list[str],
+) -> str:
+    """The change as the runs measure it, with its uncertainty: the geometric mean of the paired
+    ratios (same replica, same world) and its 90 % interval (Student's t over the pairs), and how
+    far a replica's mean ratio over its worlds scatters by itself (the pooled spread of the
+    ratios between the worlds of one replica: a ratio moves 20-50 % between worlds with no change
+    of code, RESULTS.md "Held-out worlds"). A per-replica bar below that scatter fails by chance."""
+    logs: list[float] = []
+    spread: list[float] = []
+    n_worlds = 0
+    for s in sequences:
+        mine, ref = results[(name, s, mode)], results[(first, s, mode)]
+        r = [math.log(a[key] / b[key]) for a, b in zip(mine, ref, strict=True)]
+        logs += r
+        n_worlds = max(n_worlds, len(r))
+        if len(r) > 1:
+            spread.append(statistics.variance(r))
+    if len(logs) < 2:
+        return "too few runs for an interval"
+    m, se = statistics.mean(logs), statistics.stdev(logs) / math.sqrt(len(logs))
+    q = float(student_t.ppf(0.95, len(logs) - 1))
+    line = (
+        f"paired ratio x{math.exp(m):.3f} (90 %: {math.exp(m - q * se):.3f}-"
+        f"{math.exp(m + q * se):.3f}, {len(logs)} pairs)"
+    )
+    if spread:
+        sd = math.sqrt(statistics.mean(spread) / n_worlds)
+        line += f"; a replica's mean over {n_worlds} worlds scatters by +-{100 * sd:.0f} % (1 sd)"
+    return line
 
 
 if __name__ == "__main__":
