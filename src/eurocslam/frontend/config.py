@@ -78,7 +78,9 @@ class FrontendConfig:
     # ---- map management --------------------------------------------------------------------
     max_new_landmarks_per_keyframe: int = 400
     # close and far stereo points (ORB-SLAM's rule, 40 baselines: 4.4 m on EuRoC, 22 m on
-    # KITTI): beyond, a depth rests on a disparity of a few pixels, and the tenths of a pixel
+    # KITTI, a disparity of fx / 40: 10.9 px and 18 px, a parallax angle of 1/40 rad on any rig;
+    # no cut from the disparity noise did better on both, RESULTS.md "The far-point rule at two
+    # baselines"): beyond, a depth rests on a disparity of a few pixels, and the tenths of a pixel
     # of bias a real rig's rectification leaves (a render does not) make it tens of percent
     # wrong at 1 px; such far points start landmarks only to make up `min_new_landmarks`
     # (closest first). 0: every stereo point alike. Visual-only runs, where scale comes from
