@@ -184,3 +184,55 @@ def test_a_kalibr_camchain_given_with_calib_for_other_images(
     shutil.copy(tumvi / "dso" / "camchain.yaml", calib)
     message = f"{calib}: key 'cam0.resolution' is [512, 512] but the cam0 images are 752x480"
     _check(v101_micro, message, tmp_path, capsys, ("--calib", str(calib)))
+
+
+# ---- what a good rig's calibration becomes in the MCAP ----------------------------------------
+
+RATIONAL = [0.5, 0.1, 0.001, 0.002, 0.01, 0.9, 0.2, 0.03]
+EQUI4 = [0.01, 0.001, -0.002, 0.0002]
+
+
+@pytest.mark.parametrize(
+    ("model", "d"),
+    [("plumb_bob", [-0.1, 0.01, 0.001, -0.002, 0.0005]), ("equidistant", EQUI4),
+     ("rational_polynomial", RATIONAL)],
+)  # fmt: skip
+def test_the_mcap_carries_the_bags_camera_model_and_tf(
+    model: str, d: list[float], tmp_path: Path
+) -> None:
+    """A robot bag's raw cameras (CameraInfo of each model, /tf_static) as `run.mcap` writes
+    them (`convert` and `run` share the sensor streams): the same distortion model and
+    coefficients, K, and /tf_static body (the IMU frame) -> cam0/cam1 of the rig."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from eurocslam.dataset import open_sequence
+    from eurocslam.geometry import make_T, quat_wxyz_to_rot
+
+    over = {"distortion_model": model, "d": d}
+    infos = (pinhole_info(**over), pinhole_info(tx=-2.5, **over))
+    bag = write_robot_bag(tmp_path / "bag", infos, realsense_tree(), topics=RAW_TOPICS)
+    rig = open_sequence(bag, quiet=True).rig
+    out = tmp_path / "out.mcap"
+    assert main(["convert", str(bag), "-o", str(out), "--no-progress"]) == 0
+    got: dict[str, Any] = {}
+    with open(out, "rb") as f:
+        for _s, ch, _m, msg in make_reader(
+            f, decoder_factories=[DecoderFactory()]
+        ).iter_decoded_messages(topics=["/cam0/camera_info", "/cam1/camera_info", "/tf_static"]):
+            if ch.topic == "/tf_static":
+                for tr in msg.transforms:
+                    q, p = tr.transform.rotation, tr.transform.translation
+                    got[tr.child_frame_id] = make_T(
+                        quat_wxyz_to_rot(np.array([q.w, q.x, q.y, q.z])), np.array([p.x, p.y, p.z])
+                    )
+            else:
+                got.setdefault(ch.topic, msg)
+    for cam, calib, k in (("cam0", rig.cam0, 0), ("cam1", rig.cam1, 1)):
+        info = got[f"/{cam}/camera_info"]
+        assert info.distortion_model == model
+        np.testing.assert_allclose(info.d, d, atol=1e-12)
+        np.testing.assert_allclose(np.reshape(info.k, (3, 3)), np.reshape(infos[k]["k"], (3, 3)))
+        np.testing.assert_allclose(got[cam], calib.T_body_cam, atol=1e-9)
+    assert rig.imu is not None
+    np.testing.assert_allclose(got["imu0"], rig.imu.T_body_imu, atol=1e-9)
