@@ -49,8 +49,6 @@ FOVY_DEG = 45.0
 PANEL_ASPECT = 0.8
 MARGIN = 1.15  # the run's bounding sphere fills 1 / MARGIN of the narrower field of view
 MIN_RADIUS_M = 3.0  # a run that hardly moves is still framed like a room
-# the template's scale: paths, frustums and grid are drawn for a run of about this radius
-TEMPLATE_RADIUS_M = 5.0
 
 
 def template() -> Layout:
@@ -187,8 +185,8 @@ def _distance(radius: float) -> float:
 def framed(layout: Layout, points: np.ndarray) -> Layout:
     """The 3D panel framed on `points` (the run's positions in `world`): fixed frame `world`, the
     camera looking at their centre from the distance that shows them all (same tilt and heading
-    as the template), the grid around them, and paths and camera frustums scaled up for a run
-    larger than the template's room (never down)."""
+    as the template), the grid around them, and paths and camera frustums scaled with that
+    distance (never down), so that they look on screen as they do in the template."""
     out = copy.deepcopy(layout)
     cfg = out["configById"][PANEL_3D]
     centre, radius, distance = framing(points)
@@ -200,7 +198,8 @@ def framed(layout: Layout, points: np.ndarray) -> Layout:
     cam["far"] = max(float(cam.get("far", 5000)), 20.0 * distance)
     cfg["followMode"] = "follow-none"
     cfg["followTf"] = "world"
-    scale = max(1.0, radius / TEMPLATE_RADIUS_M)
+    # lines and frustums keep their size on screen: scaled with the camera's distance
+    scale = max(1.0, distance / float(layout["configById"][PANEL_3D]["cameraState"]["distance"]))
     for settings in cfg["topics"].values():
         for key in ("lineWidth", "distance", "width"):  # paths; camera frustums
             if key in settings:
