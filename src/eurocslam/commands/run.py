@@ -24,7 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         required=True,
         metavar="OUT",
         help="output folder (created): run.mcap, trajectory_*.tum/.csv, map.ply, map/, "
-        "config.yaml, summary.json; a previous run's outputs there are replaced",
+        "config.yaml, summary.json, layout.json (this run's Foxglove layout); a previous run's "
+        "outputs there are replaced",
     )
     parser.add_argument(
         "--no-imu",
