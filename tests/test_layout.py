@@ -304,3 +304,18 @@ def test_a_room_keeps_the_drone_scale() -> None:
     # no positions (or only non-finite ones): framed like a room at the origin
     c, r, _ = framing(np.full((3, 3), np.nan))
     assert list(c) == [0, 0, 0] and r == 3.0
+
+
+def test_play_names_the_runs_own_layout_else_the_shipped_one(tmp_path: Path) -> None:
+    from types import SimpleNamespace
+
+    from eurocslam.commands.play import _layout_for
+
+    def info(topics: list[str]) -> Any:
+        chans = {i: SimpleNamespace(topic=t) for i, t in enumerate(topics)}
+        return SimpleNamespace(path=tmp_path / "run.mcap", channels=chans)
+
+    assert _layout_for(info(["/imu0", "/cam0/image_raw"])) == "layouts/eurocslam.json"
+    assert _layout_for(info(["/cam0/image_raw"])) == "layouts/eurocslam-visual.json"
+    (tmp_path / "layout.json").write_text("{}")
+    assert _layout_for(info(["/cam0/image_raw"])) == str(tmp_path / "layout.json")
