@@ -197,9 +197,9 @@ def _run(args: argparse.Namespace, cfg, source, live_sink) -> int:  # type: igno
         print(f"note: {source.skips.total} item(s) skipped while reading:", file=sys.stderr)
         for line in source.skips.lines():
             print(f"  {line}", file=sys.stderr)
-    print(f"outputs in {args.output}")
     if opts.mcap:
         _foxglove_hint(Path(args.output), source)
+    print(f"outputs in {args.output}")  # the last line (scripts read it)
     if live_sink is not None and live_sink.n_clients > 0:
         print(
             "eurocslam run: the live view keeps the final state until the viewer disconnects "
