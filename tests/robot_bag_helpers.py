@@ -52,23 +52,46 @@ def write_robot_bag(
     image_size: tuple[int, int] = (64, 48),
     topics: tuple[str, str] = ("/camera/infra1/image_rect_raw", "/camera/infra2/image_rect_raw"),
     n: int = 3,
+    storage: str = "mcap",
 ) -> Path:
-    """A ROS 2 MCAP bag folder with the given CameraInfo fields and static transforms."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
+    """A bag with the given CameraInfo fields and static transforms: a ROS 2 bag folder
+    (`storage` "mcap" or "sqlite3") or a ROS 1 `.bag` file ("ros1": `path` gets the suffix; the
+    CameraInfo fields are ROS 1's D, K, R, P)."""
     from rosbags.typesys import Stores, get_typestore
 
-    ts = get_typestore(Stores.ROS2_HUMBLE)
+    ros1 = storage == "ros1"
+    if ros1:
+        from eurocslam.dataset.bag.realsense_writer import _ros1_typestore
+
+        ts = _ros1_typestore()
+    else:
+        ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
-    ser = ts.serialize_cdr
+
+    def ser(msg: Any, msgtype: str) -> Any:
+        return ts.serialize_ros1(msg, msgtype) if ros1 else ts.serialize_cdr(msg, msgtype)
 
     def hdr(t: int, frame: str) -> Any:
         stamp = T["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9)
+        if ros1:
+            return T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id=frame)
         return T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+    if ros1:
+        from rosbags.rosbag1 import Writer as Writer1
+
+        path = path.with_suffix(".bag")
+        writer: Any = Writer1(path)
+    else:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        writer = Writer(path, version=9, storage_plugin=plugin)
 
     rng = np.random.default_rng(0)
     w, h = image_size
     V3, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as wr:
+    with writer as wr:
         img_c = [wr.add_connection(t, "sensor_msgs/msg/Image", typestore=ts) for t in topics]
         info_c = [
             wr.add_connection(t.rsplit("/", 1)[0] + "/camera_info", "sensor_msgs/msg/CameraInfo",
@@ -104,7 +127,8 @@ def write_robot_bag(
                 frame = f.pop("frame_id") or frames[k]
                 ci = T["sensor_msgs/msg/CameraInfo"](
                     header=hdr(t, frame), binning_x=0, binning_y=0, roi=roi,
-                    **{key: (np.asarray(v, dtype=np.float64) if key in "dkrp" else v)
+                    **{(key.upper() if ros1 and key in "dkrp" else key):
+                       (np.asarray(v, dtype=np.float64) if key in "dkrp" else v)
                        for key, v in f.items()},
                 )  # fmt: skip
                 wr.write(info_c[k], t, ser(ci, "sensor_msgs/msg/CameraInfo"))
