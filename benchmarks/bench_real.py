@@ -10,8 +10,14 @@ printed. Without arguments it runs the real KITTI excerpt in ../shared/data/kitt
 only real moving imagery here); its ground truth and stereo geometry disagree in scale by ~5 %,
 so judge it with Sim(3) and read SE(3) beside it.
 
+The runs of one configuration are deterministic, so `--runs` repeats the same number. What moves
+it is the extraction: on the excerpt a change of `frontend.n_features` by 10 % moved the Sim(3)
+ATE of the defaults from 0.039 to 0.083-0.090 m (RESULTS.md, "The far-point rule at two
+baselines"). `--n-features 900,1000,1100` runs each sequence once per count (over `--config`)
+and prints each and their mean: judge a change by that mean and spread, not by one run.
+
 usage: .venv/bin/python benchmarks/bench_real.py [SEQ ...] [--runs 3] [--config FILE]
-       [--out DIR] [--json FILE]
+       [--n-features 900,1000,1100] [--out DIR] [--json FILE]
 """
 
 from __future__ import annotations
@@ -79,11 +85,32 @@ def run_once(seq: Path, out: Path, config: Path | None) -> dict[str, Any]:
     return row
 
 
+def perturbed_configs(base: Path | None, counts: list[int], root: Path) -> list[Path]:
+    """`base` (or the defaults) with `frontend.n_features` set to each of `counts`."""
+    import yaml
+
+    doc = yaml.safe_load(base.read_text()) if base is not None else {}
+    out = []
+    for n in counts:
+        d = dict(doc or {})
+        d["frontend"] = {**(d.get("frontend") or {}), "n_features": n}
+        p = root / f"config_n{n}.yaml"
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(yaml.safe_dump(d, sort_keys=False))
+        out.append(p)
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("sequences", nargs="*", type=Path, help="KITTI sequences/NN or ASL folders")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--config", type=Path, help="eurocslam run --config FILE")
+    ap.add_argument(
+        "--n-features",
+        type=lambda t: [int(x) for x in t.split(",") if x.strip()],
+        help="one run per count of frontend.n_features (e.g. 900,1000,1100), and their mean",
+    )
     ap.add_argument("--out", type=Path, help="keep the runs here (default: a temporary folder)")
     ap.add_argument("--json", type=Path, help="write every run's figures here")
     args = ap.parse_args()
@@ -100,6 +127,30 @@ def main() -> int:
     )
     print(head)
     every: dict[str, list[dict[str, Any]]] = {}
+    if args.n_features:
+        for seq in seqs:
+            cfgs = perturbed_configs(args.config, args.n_features, root / seq.name)
+            rows = [
+                run_once(seq, root / seq.name / f"n{n}", c)
+                for n, c in zip(args.n_features, cfgs, strict=True)
+            ]
+            every[str(seq)] = rows
+            for n, r in zip(args.n_features, rows, strict=True):
+                print(
+                    f"{seq.name:<10}n_features {n:>5}: ATE SE3 {r['ate_se3']:.3f} m, Sim3 "
+                    f"{r['ate_sim3']:.3f} m, scale {r['scale']:.3f}, segments {r['segments']}, "
+                    f"resets {r['resets']}",
+                    flush=True,
+                )
+            sims = [float(r["ate_sim3"]) for r in rows]
+            print(
+                f"{seq.name:<10}Sim3 ATE mean {statistics.mean(sims):.3f} m "
+                f"(min {min(sims):.3f}, max {max(sims):.3f})",
+                flush=True,
+            )
+        if args.json:
+            args.json.write_text(json.dumps(every, indent=2))
+        return 0
     for seq in seqs:
         rows = [run_once(seq, root / seq.name / f"run_{k}", args.config) for k in range(args.runs)]
         every[str(seq)] = rows

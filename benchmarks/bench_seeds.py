@@ -20,7 +20,7 @@ against stored ones without running them again.
 
 usage: .venv/bin/python benchmarks/bench_seeds.py [--set dev|heldout | --seeds 0,1,2]
        [--sequences all|MH_04,V1_03] [--modes si,vo] [--duration 60] [--mcap]
-       [--json runs.json] [--report-only] NAME=REV[:ARGS] [NAME=REV[:ARGS] ...]
+       [--rig euroc|tumvi] [--json runs.json] [--report-only] NAME=REV[:ARGS] [...]
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import math
 import os
 import statistics
 import subprocess
@@ -35,6 +36,8 @@ import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+
+from scipy.stats import t as student_t
 
 from bench_ab import Variant, checked_out, parse_variant, run_once
 from bench_slam import EXE, REPO, SEQUENCES, make_replica
@@ -94,11 +97,15 @@ class Job:
     seq: str
     seed: int
     mode: str
+    rig: str = "euroc"
 
     def key(self, duration: float | None, mcap: bool) -> str:
         span = "full" if duration is None else f"{duration:g}s"
         args = " ".join(self.variant.args)
-        return f"{self.code}|{args}|{self.seq}|{span}|s{self.seed}|{self.mode}|mcap={int(mcap)}"
+        rig = f"|rig={self.rig}" if self.rig != "euroc" else ""
+        return (
+            f"{self.code}|{args}|{self.seq}|{span}|s{self.seed}|{self.mode}|mcap={int(mcap)}{rig}"
+        )
 
 
 class Store:
@@ -136,6 +143,12 @@ def main() -> int:
         "--cache", type=Path, default=Path(tempfile.gettempdir()) / "eurocslam_replicas"
     )
     ap.add_argument("--json", type=Path, help="keep every run here; reuse the runs it holds")
+    ap.add_argument(
+        "--rig",
+        choices=("euroc", "tumvi"),
+        default="euroc",
+        help="the replicas' rig: tumvi renders TUM-VI's stereo fisheye along the same motions",
+    )
     ap.add_argument("--report-only", action="store_true", help="only the runs in --json")
     args = ap.parse_args()
     variants = [parse_variant(t) for t in args.variants]
@@ -152,7 +165,7 @@ def main() -> int:
     store = Store(args.json)
     codes = {v.name: code_id(v.rev) for v in variants}
     jobs = [
-        Job(v, codes[v.name], s, seed, mode)
+        Job(v, codes[v.name], s, seed, mode, args.rig)
         for seed in seeds  # world after world: the replicas are rendered in that order
         for s in args.sequences
         for mode in args.modes
@@ -174,7 +187,7 @@ def main() -> int:
         ):
             for n, j in enumerate(todo, 1):
                 # rendered when its turn comes (about 1 GB per minute of data), not all first
-                seq = make_replica(j.seq, args.cache, duration, j.seed)
+                seq = make_replica(j.seq, args.cache, duration, j.seed, rig=j.rig)
                 v = Variant(j.variant.name, j.variant.rev, [*j.variant.args], j.variant.src)
                 if j.mode == "vo":
                     v.args.append("--no-imu")
@@ -196,6 +209,7 @@ def main() -> int:
     world_set = args.set if args.seeds is None else "given"
     print(
         f"# eurocslam run over worlds {'/'.join(map(str, seeds))} ({world_set}), {span}, "
+        f"{args.rig} rig, "
         f"{'MCAP' if args.mcap else 'no MCAP'}; variants: "
         + ", ".join(f"{v.name}={v.rev}@{codes[v.name][:12]} {' '.join(v.args)}" for v in variants)
     )
@@ -277,12 +291,55 @@ def gate(
                 print(f"- {v.name}: {'ok  ' if ok else 'FAIL'} {line}")
                 if not ok:
                     failures.append(line)
+        for mode in modes:
+            for key, what in (("ate_mm", "final"), ("online_mm", "online")):
+                print(
+                    f"  {MODES[mode]} {what}: "
+                    + paired(results, first, v.name, mode, key, sequences)
+                )
         complete = len(sequences) == len(SEQUENCES) and len(modes) == len(MODES) and n_worlds >= 3
         verdict = "holds" if not failures else f"fails ({len(failures)} of {2 * len(modes)})"
         print(
             f"**{v.name}: the gate {verdict}**"
             + ("" if complete else " (not the whole protocol: 11 replicas, 3 worlds, both modes)")
         )
+
+
+def paired(
+    results: dict[tuple[str, str, str], list[Run]],
+    first: str,
+    name: str,
+    mode: str,
+    key: str,
+    sequences: list[str],
+) -> str:
+    """The change as the runs measure it, with its uncertainty: the geometric mean of the paired
+    ratios (same replica, same world) and its 90 % interval (Student's t over the pairs), and how
+    far a replica's mean ratio over its worlds scatters by itself (the pooled spread of the
+    ratios between the worlds of one replica: a ratio moves 20-50 % between worlds with no change
+    of code, RESULTS.md "Held-out worlds"). A per-replica bar below that scatter fails by chance."""
+    logs: list[float] = []
+    spread: list[float] = []
+    n_worlds = 0
+    for s in sequences:
+        mine, ref = results[(name, s, mode)], results[(first, s, mode)]
+        r = [math.log(a[key] / b[key]) for a, b in zip(mine, ref, strict=True)]
+        logs += r
+        n_worlds = max(n_worlds, len(r))
+        if len(r) > 1:
+            spread.append(statistics.variance(r))
+    if len(logs) < 2:
+        return "too few runs for an interval"
+    m, se = statistics.mean(logs), statistics.stdev(logs) / math.sqrt(len(logs))
+    q = float(student_t.ppf(0.95, len(logs) - 1))
+    line = (
+        f"paired ratio x{math.exp(m):.3f} (90 %: {math.exp(m - q * se):.3f}-"
+        f"{math.exp(m + q * se):.3f}, {len(logs)} pairs)"
+    )
+    if spread:
+        sd = math.sqrt(statistics.mean(spread) / n_worlds)
+        line += f"; a replica's mean over {n_worlds} worlds scatters by +-{100 * sd:.0f} % (1 sd)"
+    return line
 
 
 if __name__ == "__main__":

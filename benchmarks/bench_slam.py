@@ -75,21 +75,30 @@ def gt_file(full: str) -> Path:
 
 
 def make_replica(
-    short: str, cache: Path, duration: float | None, seed: int, blur: bool = False
+    short: str,
+    cache: Path,
+    duration: float | None,
+    seed: int,
+    blur: bool = False,
+    rig: str = "euroc",
 ) -> Path:
     """The replica of `short` in world `seed` (rendered into `cache` once); `blur`: with motion
-    blur (8 ms exposures, 5x the rendering time)."""
+    blur (8 ms exposures, 5x the rendering time); `rig`: "tumvi" renders TUM-VI's stereo fisheye
+    along the same motion, in the same world (`synth --rig tumvi`, a TUM-VI folder)."""
     tag = f"{short}_{'full' if duration is None else f'{duration:g}s'}_s{seed}"
     tag += "_blur" if blur else ""
+    tag += f"_{rig}" if rig != "euroc" else ""
     out = cache / tag
     # one render per replica: another benchmark asking for it at the same time waits for it
     cache.mkdir(parents=True, exist_ok=True)
     with open(cache / f"{tag}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        return _render_once(short, out, duration, seed, blur)
+        return _render_once(short, out, duration, seed, blur, rig)
 
 
-def _render_once(short: str, out: Path, duration: float | None, seed: int, blur: bool) -> Path:
+def _render_once(
+    short: str, out: Path, duration: float | None, seed: int, blur: bool, rig: str = "euroc"
+) -> Path:
     from eurocslam.synth import SynthSpec, synthesize
     from eurocslam.synth.sequence import GENERATOR_REVISION
 
@@ -110,10 +119,11 @@ def _render_once(short: str, out: Path, duration: float | None, seed: int, blur:
         )
     spec = SynthSpec(
         trajectory=gt_file(SEQUENCES[short]),
-        imu=V101_IMU if short == "V1_01" and V101_IMU.exists() else None,
+        imu=V101_IMU if short == "V1_01" and V101_IMU.exists() and rig == "euroc" else None,
         duration_s=duration,
         seed=seed,
         motion_blur=blur,
+        rig=rig,
     )
     t = time.perf_counter()
     # in a child process: rendering makes this process large, and a child started later
@@ -178,9 +188,13 @@ def run_one(
 
 def ate(seq: Path, est_path: Path) -> float:
     from eurocslam.eval.evaluate import EvalConfig, evaluate
+    from eurocslam.eval.loaders import groundtruth_csv_of
     from eurocslam.trajectory_io import read_euroc_csv, read_tum
 
-    gt = read_euroc_csv(seq / "mav0" / "state_groundtruth_estimate0" / "data.csv")
+    gt_csv = groundtruth_csv_of(seq)  # a TUM-VI replica's is mocap0
+    if gt_csv is None:
+        raise SystemExit(f"{seq}: no ground truth")
+    gt = read_euroc_csv(gt_csv)
     est = read_tum(est_path)
     return float(evaluate(gt, est, EvalConfig(align="se3")).ate_trans.rmse)
 

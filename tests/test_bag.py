@@ -249,12 +249,16 @@ def test_unsupported_encoding_names_topic_and_encoding(tmp_path: Path) -> None:
 
 
 def test_missing_topic_lists_what_the_bag_has(tmp_path: Path) -> None:
-    path = _raw_bag(tmp_path / "other.bag", cam_topics=("/left/image", "/right/image"))
+    # three image topics whose names form no stereo pair: the type alone cannot decide
+    topics = ("/front/image", "/back/image", "/top/image")
+    path = _raw_bag(tmp_path / "other.bag", cam_topics=topics)
     with pytest.raises(DatasetError) as e:
         BagSequence(path)
     msg = str(e.value)
     assert "no topic for cam0" in msg and "--topic cam0=TOPIC" in msg
-    assert "/left/image (sensor_msgs/msg/Image, 3)" in msg and "/imu0" in msg
+    assert "cannot tell which image topics form the stereo pair" in msg
+    assert "/front/image (sensor_msgs/msg/Image, 3)" in msg and "/imu0" in msg
+    assert "\n" not in msg
 
 
 def test_unknown_message_type_is_an_error(tmp_path: Path) -> None:
@@ -306,8 +310,13 @@ def test_user_topics(tmp_path: Path) -> None:
     mini = _mini_seq()
     tm = TopicMap(cam0=("/stereo/left",), cam1=("/stereo/right",), imu=("/mav/imu",))
     path = write_rosbag(mini, tmp_path / "renamed.bag", "ros1", topics=tm)
-    with pytest.raises(DatasetError, match="no topic for cam0"):
-        BagSequence(path)
+    # found by message type: the names say left and right, the one Imu topic is the IMU
+    found = BagSequence(path)
+    assert (found.stats["cam0"].topic, found.stats["cam1"].topic) == ("/stereo/left",
+                                                                      "/stereo/right")  # fmt: skip
+    assert found.stats["imu"].topic == "/mav/imu"
+    assert any("stereo pair found by names (left/right)" in n for n in found.notes)
+    np.testing.assert_array_equal(found.imu.t_ns, mini.imu.t_ns)
     seq = open_sequence(
         path, topics={"left": "/stereo/left", "cam1": "/stereo/right", "imu": "/mav/imu"},
         quiet=True,
@@ -490,7 +499,7 @@ def test_check_bag_on_a_good_bag(bags: dict[str, Path], asl: SimpleNamespace) ->
 
 
 def test_check_bag_reports_open_errors(tmp_path: Path) -> None:
-    path = _raw_bag(tmp_path / "other.bag", cam_topics=("/left/image", "/right/image"))
+    path = _raw_bag(tmp_path / "other.bag", cam_topics=("/a/image", "/b/image", "/c/image"))
     findings = check_bag(path)
     assert exit_code(findings) == 2
     assert findings[0].severity == "error" and "no topic for cam0" in findings[0].message

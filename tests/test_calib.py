@@ -14,15 +14,17 @@ import yaml
 from eurocslam.dataset.calib import (
     CameraCalib,
     camera_from_yaml,
+    default_rig,
+    load_rig,
+    load_sensor_yaml,
+    load_sensor_yaml_text,
+)
+from eurocslam.dataset.doctor.calib_checks import (
     check_camera,
     check_imu,
     check_stereo,
     check_stereo_pair,
     check_transform,
-    default_rig,
-    load_rig,
-    load_sensor_yaml,
-    load_sensor_yaml_text,
     radial_fold_radius,
 )
 from eurocslam.errors import CalibrationError
@@ -132,6 +134,17 @@ def _cam_yaml(tmp_path: Path, v101_micro: Path, old: str, new: str) -> Path:
         ("367.215", "9367.215", "principal point"),
         ("camera_model: pinhole", "camera_model: omni", "camera_model 'omni'"),
         ("rate_hz: 20", "rate_hz: [20", "not valid YAML"),
+        (
+            "distortion_model: radial-tangential",
+            "distortion_model: double_sphere",
+            "key 'distortion_model': distortion model 'double_sphere' not supported",
+        ),
+        (
+            "distortion_model: radial-tangential\ndistortion_coefficients: [-0.28340811,",
+            "distortion_model: equidistant\ndistortion_coefficients: [0.01, 0.0,",
+            "key 'distortion_coefficients' must have 4 values for distortion model "
+            "'equidistant', has 5",
+        ),
     ],
 )
 def test_errors_name_file_and_key(
@@ -144,6 +157,24 @@ def test_errors_name_file_and_key(
     assert needle in msg
     assert str(mav0 / "cam0" / "sensor.yaml") in msg
     assert "\n" not in msg
+
+
+def test_equidistant_sensor_yaml(tmp_path: Path, v101_micro: Path) -> None:
+    """EuRoC's sensor.yaml with `distortion_model: equidistant` (a Kannala-Brandt fisheye)."""
+    mav0 = _cam_yaml(
+        tmp_path, v101_micro, "distortion_model: radial-tangential", "distortion_model: equidistant"
+    )
+    p = mav0 / "cam0" / "sensor.yaml"
+    text = p.read_text()
+    start = text.index("distortion_coefficients:")
+    p.write_text(text[:start] + "distortion_coefficients: [0.0035, 0.0007, -0.0021, 0.0002]\n")
+    rig = load_rig(mav0)
+    assert (
+        rig.cam0.distortion_model == "equidistant"
+        and rig.cam1.distortion_model == "radial-tangential"
+    )
+    assert type(rig.cam0.model).__name__ == "PinholeEquidistant"
+    assert rig.cam0.distortion == (0.0035, 0.0007, -0.0021, 0.0002)
 
 
 def test_missing_sensor_yaml_names_it(tmp_path: Path, v101_micro: Path) -> None:

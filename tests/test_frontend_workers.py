@@ -39,9 +39,28 @@ def frames(scene: Scene) -> list[StereoFrame]:
     return out
 
 
-def _shm_names() -> set[str]:
-    shm = Path("/dev/shm")
-    return {p.name for p in shm.iterdir()} if shm.is_dir() else set()
+@pytest.fixture
+def made_shm(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The names of the shared memory blocks the test's workers create (other processes on the
+    machine create and remove their own meanwhile)."""
+    from multiprocessing import shared_memory
+
+    names: list[str] = []
+
+    class Recorded(shared_memory.SharedMemory):
+        def __init__(self, name: str | None = None, create: bool = False, size: int = 0) -> None:
+            super().__init__(name, create, size)
+            if create:
+                names.append(self.name)
+
+    monkeypatch.setattr(shared_memory, "SharedMemory", Recorded)
+    return names
+
+
+def _left(names: list[str]) -> list[str]:
+    """Those of `names` still in /dev/shm (where POSIX shared memory has its names)."""
+    assert names, "no shared memory was made"
+    return [n for n in names if (Path("/dev/shm") / n.lstrip("/")).exists()]
 
 
 def _same(a: FrameFeatures, b: FrameFeatures) -> None:
@@ -52,7 +71,7 @@ def _same(a: FrameFeatures, b: FrameFeatures) -> None:
     np.testing.assert_array_equal(a.stereo.uR, b.stereo.uR)
 
 
-def test_workers_extract_what_inline_extraction_does(scene: Scene, frames) -> None:
+def test_workers_extract_what_inline_extraction_does(scene: Scene, frames, made_shm) -> None:
     """Round-robin over two workers, in frame order; missing, blank and wrong-size images are
     reported as inline; the decode time is the reader's."""
     bad = list(frames)
@@ -60,7 +79,6 @@ def test_workers_extract_what_inline_extraction_does(scene: Scene, frames) -> No
     bad[5] = replace(bad[5], right=np.full_like(frames[5].right, 128))
     bad[7] = replace(bad[7], left=frames[7].left[:-8], right=frames[7].right[:-8])
     fe = FeatureStream(scene.rig, FrontendConfig(prefetch_workers=2))
-    before = _shm_names()
     got = list(fe(bad))
     assert [fr for fr, _ in got] == bad
     for (_, ff), fr in zip(got, bad, strict=True):
@@ -71,7 +89,7 @@ def test_workers_extract_what_inline_extraction_does(scene: Scene, frames) -> No
     assert len(cost.worker_peak_rss_mb) == 2 and all(m > 10 for m in cost.worker_peak_rss_mb)
     assert len(cost.worker_cpu_s) == 2 and all(c > 0 for c in cost.worker_cpu_s)
     assert cost.reader_cpu_s > 0
-    assert _shm_names() <= before  # the shared memory is gone
+    assert not _left(made_shm)  # the shared memory is gone
 
 
 def test_one_frame_in_n_is_extracted(scene: Scene, frames) -> None:
@@ -106,15 +124,14 @@ def test_an_error_of_the_source_reaches_the_caller(scene: Scene, frames) -> None
     assert seen == frames[:4]  # every frame before the error arrived
 
 
-def test_closing_the_stream_early_stops_the_workers(scene: Scene, frames) -> None:
+def test_closing_the_stream_early_stops_the_workers(scene: Scene, frames, made_shm) -> None:
     fe = FeatureStream(scene.rig, FrontendConfig())
-    before = _shm_names()
     stream = fe(iter(frames * 10))
     next(stream)
     t0 = time.perf_counter()
     stream.close()
     assert time.perf_counter() - t0 < 4.0
-    assert _shm_names() <= before
+    assert not _left(made_shm)
 
 
 @pytest.mark.parametrize("idle", [False, True], ids=["extracting", "idle"])
@@ -138,13 +155,12 @@ def test_a_worker_that_dies_is_an_error(scene: Scene, frames, idle: bool) -> Non
             pass
 
 
-def test_the_shared_memory_has_no_name_once_the_workers_run(scene: Scene, frames) -> None:
+def test_the_shared_memory_has_no_name_once_the_workers_run(scene: Scene, frames, made_shm) -> None:
     """Nothing is left in /dev/shm even if the process is killed mid-run."""
-    before = _shm_names()
     fe = FeatureStream(scene.rig, FrontendConfig())
     stream = fe(iter(frames))
     next(stream)
-    assert _shm_names() <= before
+    assert not _left(made_shm)
     stream.close()
 
 
@@ -236,7 +252,7 @@ def test_a_worker_reports_its_own_peak_memory_not_its_parents() -> None:
 
 
 def test_without_worker_processes_extraction_runs_inline(
-    scene: Scene, frames, monkeypatch, caplog
+    scene: Scene, frames, monkeypatch, caplog, made_shm
 ) -> None:
     """Where processes cannot start (a locked-down container, no shared memory), the stream
     says so and extracts in the caller, with the same features."""
@@ -246,13 +262,12 @@ def test_without_worker_processes_extraction_runs_inline(
 
     monkeypatch.setattr(subprocess, "Popen", refuse)
     fe = FeatureStream(scene.rig, FrontendConfig())
-    before = _shm_names()
     got = list(fe(frames[:4]))
     assert [fr for fr, _ in got] == frames[:4]
     for (_, ff), fr in zip(got, frames[:4], strict=True):
         _same(ff, fe.extractor.extract(fr))
     assert "extracting in this process" in caplog.text
-    assert _shm_names() <= before
+    assert not _left(made_shm)
 
 
 def test_workers_run_the_same_eurocslam_as_their_parent(tmp_path: Path) -> None:

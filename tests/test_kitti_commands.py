@@ -201,7 +201,9 @@ def test_a_rig_that_needs_rectifying_is_still_rectified(seq: Path) -> None:
     turn = make_T(so3_exp(np.array([0.0, 0.01, 0.0])), np.zeros(3))
     tilted = dataclasses.replace(rig.cam1, T_body_cam=rig.cam1.T_body_cam @ turn)
     other_cx = dataclasses.replace(rig.cam1, cx=CX + 1.0)
-    distorted = dataclasses.replace(rig.cam0, distortion=(0.01, 0.0, 0.0, 0.0))
+    distorted = dataclasses.replace(
+        rig.cam0, distortion=(0.01, 0.0, 0.0, 0.0), distortion_model="radial-tangential"
+    )
     for r in (
         dataclasses.replace(rig, cam1=tilted),
         dataclasses.replace(rig, cam1=other_cx),

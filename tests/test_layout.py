@@ -3,17 +3,30 @@ and every topic, message field and frame they reference exists in what `eurocsla
 
 from __future__ import annotations
 
-import copy
 import json
 import re
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+
+from eurocslam.io.layout import (
+    dumps,
+    framed,
+    framing,
+    run_layout,
+    shipped_layouts,
+    template,
+    translate_to_studio_148,
+    visual_only,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 LAYOUT = REPO / "layouts" / "eurocslam.json"
 LAYOUT_148 = REPO / "layouts" / "eurocslam-1.48.json"
+VISUAL = REPO / "layouts" / "eurocslam-visual.json"
+VISUAL_148 = REPO / "layouts" / "eurocslam-visual-1.48.json"
 
 # Topics `eurocslam run` writes (io/sensor_streams.py + io/slam_topics.py), their types, and the
 # frames of its tf tree. The slow test below checks this list against a real run.mcap.
@@ -42,41 +55,6 @@ RUN_TOPICS = {
     "/slam/places": "visualization_msgs/msg/MarkerArray",
 }
 RUN_FRAMES = {"world", "body", "imu0", "cam0", "cam1", "gt_world", "gt_body"}
-
-
-def translate_to_studio_148(layout: dict[str, Any]) -> dict[str, Any]:
-    """Today's Foxglove layout -> Foxglove Studio 1.48 (the open-source build the headless
-    viewer runs): the `Image` panel (3D-style `imageMode` config) is `ImageViewPanel` there
-    (`cameraTopic`, `enabledMarkerTopics`). Everything else is the same."""
-    out = copy.deepcopy(layout)
-    renamed: dict[str, str] = {}
-    configs: dict[str, Any] = {}
-    for pid, cfg in out["configById"].items():
-        kind, _, suffix = pid.partition("!")
-        if kind == "Image":
-            mode = cfg["imageMode"]
-            new_id = f"ImageViewPanel!{suffix}"
-            renamed[pid] = new_id
-            configs[new_id] = {
-                "cameraTopic": mode["imageTopic"],
-                "enabledMarkerTopics": [
-                    t for t, s in mode.get("annotations", {}).items() if s.get("visible")
-                ],
-                "synchronize": bool(mode.get("synchronize", False)),
-                "transformMarkers": False,
-                "mode": "fit",
-            }
-        else:
-            configs[pid] = cfg
-    out["configById"] = configs
-
-    def walk(node: Any) -> Any:
-        if isinstance(node, str):
-            return renamed.get(node, node)
-        return {**node, "first": walk(node["first"]), "second": walk(node["second"])}
-
-    out["layout"] = walk(out["layout"])
-    return out
 
 
 def _leaves(node: Any) -> list[str]:
@@ -204,7 +182,7 @@ def test_layout_shows_what_the_issue_asks_for() -> None:
     assert set(topics) <= set(RUN_TOPICS)
 
 
-@pytest.mark.parametrize("path", [LAYOUT, LAYOUT_148])
+@pytest.mark.parametrize("path", [LAYOUT, LAYOUT_148, VISUAL, VISUAL_148])
 def test_every_referenced_topic_field_and_frame_exists_in_run_output(path: Path) -> None:
     topics, frames = referenced(_load(path))
     missing = sorted(set(topics) - set(RUN_TOPICS))
@@ -220,3 +198,124 @@ def test_field_check_catches_typos() -> None:
     assert _field_exists("std_msgs/msg/Float64MultiArray", ".data[3]")
     assert not _field_exists("sensor_msgs/msg/Imu", ".angular_velocity.w")
     assert not _field_exists("std_msgs/msg/String", ".text")
+
+
+# ---- the shipped files come from the template; the layout a run writes ------------------------
+
+
+def test_shipped_layouts_are_the_templates_and_its_derivatives() -> None:
+    assert template() == _load(LAYOUT)  # the package's template is the repository's layout
+    for name, layout in shipped_layouts().items():
+        assert (REPO / "layouts" / name).read_text() == dumps(layout), (
+            f"layouts/{name} is out of date: python -m eurocslam.io.layout layouts"
+        )
+
+
+@pytest.mark.parametrize("layout", [visual_only(template()), run_layout(inertial=False)])
+def test_visual_only_layout_has_no_empty_imu_panels(layout: dict[str, Any]) -> None:
+    topics, _ = referenced(layout)
+    assert not {"/imu0", "/slam/imu_bias"} & set(topics)  # nothing that a run without IMU lacks
+    assert sorted(_leaves(layout["layout"])) == sorted(layout["configById"])
+    plots = {p: c for p, c in layout["configById"].items() if p.startswith("Plot!")}
+    assert set(plots) == {"Plot!position", "Plot!features", "Plot!error"}
+    assert [q["value"] for q in plots["Plot!position"]["paths"]] == [
+        "/slam/pose.pose.position.x",
+        "/slam/pose.pose.position.y",
+        "/slam/pose.pose.position.z",
+    ]
+    # the 3D panel and both cameras as in the stereo-inertial layout
+    assert layout["configById"]["3D!map"]["topics"] == template()["configById"]["3D!map"]["topics"]
+    assert {p for p in layout["configById"] if p.startswith("Image!")} == {
+        "Image!cam0",
+        "Image!cam1",
+    }
+
+
+def test_run_layout_follows_the_image_mode() -> None:
+    def image_topics(layout: dict[str, Any]) -> set[str]:
+        return {
+            c["imageMode"]["imageTopic"]
+            for p, c in layout["configById"].items()
+            if p.startswith("Image!")
+        }
+
+    assert image_topics(run_layout(inertial=True)) == {"/cam0/image_raw", "/cam1/image_raw"}
+    assert image_topics(run_layout(inertial=True, images="png")) == {
+        "/cam0/image_raw/compressed",
+        "/cam1/image_raw/compressed",
+    }
+    assert run_layout(inertial=True) == template()  # without an extent: the shipped layout
+
+
+def _project(cam: dict[str, Any], p: np.ndarray, aspect: float) -> np.ndarray:
+    """Normalised image coordinates (-1..1 inside the panel) of world points `p` seen by the 3D
+    panel's orbit camera (Foxglove: distance, phi from +z, thetaOffset, looking at
+    targetOffset)."""
+    phi, theta = np.radians(cam["phi"]), -np.radians(cam["thetaOffset"])
+    # camera position on the sphere around the target (three.js spherical, rotated z-up)
+    back = np.array([np.sin(phi) * np.sin(theta), -np.sin(phi) * np.cos(theta), np.cos(phi)])
+    eye = np.asarray(cam["targetOffset"]) + cam["distance"] * back
+    fwd = -back
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, fwd)
+    d = p - eye
+    z = d @ fwd
+    t = np.tan(np.radians(cam["fovy"]) / 2)
+    return np.stack([(d @ right) / z / (t * aspect), (d @ up) / z / t], axis=1)
+
+
+def test_the_3d_panel_frames_a_60_m_drive() -> None:
+    # a KITTI-like drive: 60 m along a curve, the ground truth 5 % longer beside it
+    s = np.linspace(0, 1, 51)[:, None]
+    est = np.hstack([40 * np.sin(s), -40 * (1 - np.cos(s)) - 10 * s, 0.5 * s])
+    gt = est * 1.05
+    lay = framed(run_layout(inertial=False), np.vstack([est, gt]))
+    three_d = lay["configById"]["3D!map"]
+    cam = three_d["cameraState"]
+    assert (three_d["followMode"], three_d["followTf"]) == ("follow-none", "world")
+    centre, radius, distance = framing(np.vstack([est, gt]))
+    assert cam["targetOffset"] == pytest.approx(list(centre), abs=1e-3)
+    assert radius > 20 and cam["distance"] == pytest.approx(distance, abs=0.01)
+    assert cam["distance"] > 60  # not the drone's 9 m
+    # every estimated and true position inside the panel, from any heading of the camera
+    for heading in (0, 40, 90, 180, 270):
+        uv = _project({**cam, "thetaOffset": heading}, np.vstack([est, gt]), aspect=0.8)
+        assert np.all(np.abs(uv) < 1.0), heading
+    # drawn at its scale: a grid that covers it, paths and frustums larger than a room's
+    grid = three_d["layers"]["grid"]
+    assert grid["size"] >= 2 * radius and grid["size"] in (50, 100, 200)
+    room = template()["configById"]["3D!map"]["topics"]
+    for topic in ("/slam/path", "/groundtruth/path"):
+        assert three_d["topics"][topic]["lineWidth"] > room[topic]["lineWidth"]
+    assert three_d["topics"]["/cam0/camera_info"]["distance"] > 1.0
+
+
+def test_a_room_keeps_the_drone_scale() -> None:
+    p = np.random.default_rng(0).uniform(-2, 2, (200, 3))
+    lay = framed(template(), p)["configById"]["3D!map"]
+    assert 5 < lay["cameraState"]["distance"] < 15  # the template's 9 m, about
+    room = template()["configById"]["3D!map"]
+    for topic, settings in lay["topics"].items():  # nothing scaled down, hardly up
+        for key in ("lineWidth", "distance", "width"):
+            if key in settings:
+                assert 1.0 <= settings[key] / room["topics"][topic][key] < 1.5
+    assert lay["layers"]["grid"]["size"] == room["layers"]["grid"]["size"]
+    # no positions (or only non-finite ones): framed like a room at the origin
+    c, r, _ = framing(np.full((3, 3), np.nan))
+    assert list(c) == [0, 0, 0] and r == 3.0
+
+
+def test_play_names_the_runs_own_layout_else_the_shipped_one(tmp_path: Path) -> None:
+    from types import SimpleNamespace
+
+    from eurocslam.commands.play import _layout_for
+
+    def info(topics: list[str]) -> Any:
+        chans = {i: SimpleNamespace(topic=t) for i, t in enumerate(topics)}
+        return SimpleNamespace(path=tmp_path / "run.mcap", channels=chans)
+
+    assert _layout_for(info(["/imu0", "/cam0/image_raw"])) == "layouts/eurocslam.json"
+    assert _layout_for(info(["/cam0/image_raw"])) == "layouts/eurocslam-visual.json"
+    (tmp_path / "layout.json").write_text("{}")
+    assert _layout_for(info(["/cam0/image_raw"])) == str(tmp_path / "layout.json")

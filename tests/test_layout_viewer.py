@@ -76,13 +76,13 @@ def test_run_writes_every_topic_and_frame_the_layout_uses(run_mcap: Path) -> Non
         assert used_frames <= frames
 
 
-def _check_console(outdir: Path) -> str:
+def _check_console(outdir: Path, layout: Path = LAYOUT_148) -> str:
     log = (outdir / "console.log").read_text()
     assert "[error] Player problem" not in log, log[-3000:]
     alerts = [line for line in log.splitlines() if line.startswith("[alerts]")]
     assert alerts and "No problems found" in alerts[-1], alerts
     panels = sorted(p.name for p in outdir.glob("panel_*.png"))
-    assert len(panels) == len(json.loads(LAYOUT_148.read_text())["configById"]), panels
+    assert len(panels) == len(json.loads(layout.read_text())["configById"]), panels
     return log
 
 
@@ -164,3 +164,39 @@ def test_live_view_in_foxglove_studio(run_mcap: Path, tmp_path: Path) -> None:
                     p.wait(timeout=15)
                 except subprocess.TimeoutExpired:
                     p.kill()
+
+
+def _pixels_near(png: Path, rgb: tuple[int, int, int], tol: int = 60) -> int:
+    import cv2
+    import numpy as np
+
+    im = cv2.imread(str(png))[:, :, ::-1].astype(int)
+    return int((np.abs(im - np.array(rgb)).sum(axis=2) < tol).sum())
+
+
+def test_visual_only_run_in_its_own_layout(kitti_excerpt: Path, tmp_path: Path) -> None:
+    """The real KITTI excerpt (60 m drive, no IMU, stamps from 0 s) with the layout `run` wrote
+    for it: no IMU panels, and the 3D panel framed on the drive, so that the ground-truth path
+    (green) is drawn; the shipped drone-framed layout shows none of it (checked by hand: 0 green
+    pixels)."""
+    from eurocslam.cli import main
+
+    _need_viewer()
+    out = tmp_path / "out"
+    seq = kitti_excerpt / "sequences" / "k2"
+    assert main(["run", str(seq), "-o", str(out), "--no-imu", "--no-progress"]) == 0
+    layout = out / "layout-1.48.json"
+    shots = tmp_path / "shots"
+    proc = subprocess.run(
+        [str(TOOL / "view_mcap.sh"), str(out / "run.mcap"), str(layout), str(shots)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    _check_console(shots, layout)
+    panels = {p.name for p in shots.glob("panel_*.png")}
+    assert "panel_Plot_position.png" in panels and not any("gyro" in p for p in panels)
+    three_d = shots / "panel_3D_map.png"
+    assert _pixels_near(three_d, (0x26, 0xD9, 0x5A)) >= 10  # the ground-truth path
+    assert _pixels_near(three_d, (0xFF, 0x7A, 0x1A)) >= 100  # the estimated path

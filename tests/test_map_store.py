@@ -162,3 +162,10 @@ def test_a_map_from_another_rig_is_named(rig: StereoRig) -> None:
     assert why is not None and "cam1 T_body_cam" in why
     # the IMU may be missing on either side (a stereo-only session in a stereo-inertial map)
     assert rig_mismatch(rec, replace(rig, imu=None)) is None
+    # the same numbers through another camera model: a fisheye is another camera
+    fisheye = replace(rig, cam0=replace(rig.cam0, distortion_model="equidistant"))
+    why = rig_mismatch(rec, fisheye)
+    assert why is not None and "cam0 distortion model 'radial-tangential'" in why
+    # a map saved before the model was recorded: compared by the numbers alone
+    del rec["cam0"]["distortion_model"]
+    assert rig_mismatch(rec, rig) is None

@@ -67,6 +67,8 @@ def test_outputs_written(run_out: Path) -> None:
         "config.yaml",
         "summary.json",
         "summary.txt",
+        "layout.json",
+        "layout-1.48.json",
     ):
         assert (run_out / name).is_file(), name
     assert not (run_out / "run.mcap.partial").exists()

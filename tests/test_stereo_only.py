@@ -7,6 +7,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
@@ -16,6 +17,7 @@ from eurocslam.config import RunConfig
 from eurocslam.dataset import AslSequence, has_imu, load_rig, open_sequence
 from eurocslam.dataset.doctor.asl_checks import diagnose
 from eurocslam.errors import CalibrationError, ConfigError, DatasetError
+from eurocslam.io.layout import translate_to_studio_148
 from eurocslam.pipeline.slam import SlamPipeline
 
 
@@ -97,6 +99,19 @@ def test_run_goes_visual_only_by_itself(
     with open(out / "run.mcap", "rb") as f:
         topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
     assert "/imu0" not in topics and "/slam/pose" in topics
+    # the run's own layout: no IMU panels, the 3D panel on the run, a copy for Foxglove 1.48
+    layout = json.loads((out / "layout.json").read_text())
+    assert "Plot!gyro" not in layout["configById"] and "Plot!position" in layout["configById"]
+    assert json.loads((out / "layout-1.48.json").read_text()) == translate_to_studio_148(layout)
+    cam = layout["configById"]["3D!map"]["cameraState"]
+    p = np.loadtxt(out / "trajectory_final.tum")[:, 1:4]
+    assert np.all(p.min(axis=0) - 1e-3 <= cam["targetOffset"])
+    assert np.all(cam["targetOffset"] <= p.max(axis=0) + 1e-3)
+    assert f"Layouts > Import from file > {out / 'layout.json'}" in cap.out
+    with open(out / "run.mcap", "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    first = int(meta["eurocslam"]["first_stamp_ns"])
+    assert meta["eurocslam"]["time_base"] == ("relative" if first < 6e17 else "unix")
 
 
 def test_stereo_inertial_asked_for_without_an_imu_is_an_error(stereo_only: Path) -> None:

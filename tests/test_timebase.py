@@ -181,3 +181,14 @@ def test_trajectory_column_checks(tmp_path: Path) -> None:
     csv.write_text("#timestamp [ns],x,y,z,qw,qx,qy,qz\n0,0,0,0,1,0,0,0\n5,0,0,0,1,0,0,0\n")
     with pytest.raises(EvalError, match=r"small.csv:3: timestamp 5 ns looks like seconds"):
         read_euroc_csv(csv)
+
+
+def test_time_base_follows_foxglove_rule() -> None:
+    from eurocslam.timebase import RELATIVE_STAMP_MAX_NS, time_base
+
+    assert time_base(0) == "relative"  # KITTI's times.txt
+    assert time_base(5_185_269_000) == "relative"
+    assert time_base(1_403_715_273_262_142_976) == "unix"  # EuRoC V1_01
+    # Foxglove's isAbsoluteTime: sec > 20 * 365 days is a date
+    assert time_base(RELATIVE_STAMP_MAX_NS) == "relative"
+    assert time_base(RELATIVE_STAMP_MAX_NS + 1_000_000_000) == "unix"

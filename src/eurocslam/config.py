@@ -50,6 +50,12 @@ class ImuConfig:
     integration_sigma: float = limited(1e-4, gt=0)  # continuous-time position integration noise
     # longer gaps between IMU samples count as an IMU dropout
     max_gap_s: float = limited(0.05, gt=0)
+    # noise figures that replace the calibration's (None: the calibration's; a bag calibrated
+    # by its CameraInfo and /tf_static carries none, `dataset/imu_noise.py`)
+    gyroscope_noise_density: float | None = limited(None, gt=0)  # rad/s/sqrt(Hz)
+    gyroscope_random_walk: float | None = limited(None, gt=0)  # rad/s^2/sqrt(Hz)
+    accelerometer_noise_density: float | None = limited(None, gt=0)  # m/s^2/sqrt(Hz)
+    accelerometer_random_walk: float | None = limited(None, gt=0)  # m/s^3/sqrt(Hz)
 
 
 @dataclass(frozen=True)
@@ -171,7 +177,9 @@ class PlacesConfig:
     loop_min_correction_deg: float = 1.0
     # the gate (pipeline/places.py `loop_gate`): a correction is applied only when the drift it
     # measures is one the estimator's uncertainty allows, given the match's own (chi-square, 6
-    # DoF; 16.81: 99 %); refused loops are reported. The estimator's pose covariance is sampled
+    # DoF; 16.81: 99 %), and one the match tells from its own error (the same chi-square against
+    # the match's covariance alone must exceed it, `loop_significance`); refused loops are
+    # reported. The estimator's pose covariance is sampled
     # at a keyframe every `loop_covariance_every_s` (a marginal covariance costs about a fifth
     # of a smoother update) and at the query when a loop reaches the gate; a candidate between
     # samples takes the next one's (the larger: the stricter gate)
@@ -229,10 +237,16 @@ _CHOICES = {
     "init.visual_world": ("camera_level", "body"),
     "backend.smoother": ("fixed_lag", "isam2"),
     "output.drone_model": ("auto", "firefly", "none"),
+    "frontend.rectify_size": ("image", "focal"),
 }
 
 
 def _coerce(value: Any, typ: Any, key: str, origin: str) -> Any:
+    args = typing.get_args(typ)
+    if type(None) in args:  # an optional value: null, or one of the other type
+        if value is None:
+            return None
+        (typ,) = (a for a in args if a is not type(None))
     if typ is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{origin}: key '{key}' must be true or false, got {value!r}")

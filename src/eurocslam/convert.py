@@ -187,12 +187,17 @@ def convert(
 
 
 def calibration_attachments(source: SequenceSource) -> dict[str, bytes]:
-    """The sequence's sensor.yaml files (and body.yaml), named like `cam0/sensor.yaml`."""
+    """The sequence's sensor.yaml files (and body.yaml), named like `cam0/sensor.yaml`. An ASL
+    folder calibrated from elsewhere (TUM-VI's dso/, a Kalibr camchain, --calib) attaches the
+    rig it runs with, as EuRoC-style sensor.yaml texts, for cam0, cam1 and imu0."""
     paths = getattr(source, "sensor_yaml_paths", None)
-    if paths is not None:
-        out = {}
-        for sensor, p in paths().items():
-            name = "body.yaml" if sensor == "body" else f"{sensor}/sensor.yaml"
-            out[name] = Path(p).read_bytes()
-        return out
-    return {f"{s}/sensor.yaml": t.encode() for s, t in source.rig.yaml_texts}
+    texts = {f"{s}/sensor.yaml": t.encode() for s, t in source.rig.yaml_texts}
+    if paths is None:
+        return texts
+    out = {}
+    for sensor, p in paths().items():
+        name = "body.yaml" if sensor == "body" else f"{sensor}/sensor.yaml"
+        out[name] = Path(p).read_bytes()
+    if not getattr(source, "calibration_is_own", True):
+        out = {k: v for k, v in out.items() if k[:4] not in ("cam0", "cam1", "imu0")} | texts
+    return out

@@ -36,6 +36,7 @@ import numpy as np
 from eurocslam.config import RunConfig
 from eurocslam.dataset.types import SequenceSource
 from eurocslam.errors import OutputError
+from eurocslam.io.layout import run_layout, write_run_layouts
 from eurocslam.io.ply import write_ply
 from eurocslam.io.sink import Sink
 from eurocslam.io.staging import StagedOutputs
@@ -63,6 +64,8 @@ OUTPUT_NAMES = (
     "config.yaml",
     "summary.json",
     "summary.txt",
+    "layout.json",
+    "layout-1.48.json",
 )
 
 
@@ -165,6 +168,12 @@ def run_slam(
             pb.close()
         if mcap is not None:
             mcap.finish(result)
+            write_run_layouts(
+                staged.dir,
+                run_layout(
+                    inertial=cfg.inertial, images=opt.images, points=mcap.run_positions(result)
+                ),
+            )
         write_outputs(staged.dir, result, cfg)
         saved = None if opt.localize_only else pipeline.saved_map()
         if saved is not None:
@@ -207,7 +216,9 @@ class _McapOutput:
         from eurocslam.io.sensor_streams import SensorStreams, StreamOptions
         from eurocslam.io.sink import TeeSink, ThreadedSink
         from eurocslam.io.slam_topics import SlamMcapWriter
+        from eurocslam.timebase import time_base
 
+        self.source = source
         streams = SensorStreams(
             source,
             StreamOptions(
@@ -215,6 +226,8 @@ class _McapOutput:
                 t_start_ns=t0,
                 t_end_ns=t1,
                 rectify_alpha=cfg.frontend.rectify_alpha,  # CameraInfo R/P = the SLAM's
+                rectify_fov_deg=cfg.frontend.rectify_fov_deg,
+                rectify_size=cfg.frontend.rectify_size,
             ),
         )
         self.mcap = McapSink(folder / "run.mcap", compression=opt.compression)
@@ -227,7 +240,14 @@ class _McapOutput:
             )
             self.mcap.add_metadata(
                 "eurocslam",
-                {"source": str(getattr(source, "root", source.name)), "mode": cfg.mode},
+                {
+                    "source": str(getattr(source, "root", source.name)),
+                    "mode": cfg.mode,
+                    # stamps are the sequence's own (never shifted: trajectories, ground truth
+                    # and run.mcap share them, so evaluation is exact); "relative": from 0 s
+                    "time_base": time_base(streams.t0_ns),
+                    "first_stamp_ns": str(streams.t0_ns),
+                },
             )
             dest = TeeSink([self.sink, *extra_sinks]) if extra_sinks else self.sink
             streams.write_static(dest)
@@ -247,6 +267,19 @@ class _McapOutput:
     def finish(self, result: RunResult) -> None:
         self.writer.finish(result)
         self.sink.close()
+
+    def run_positions(self, result: RunResult) -> np.ndarray:
+        """Where the run went, in `world` (what its layout frames): the final trajectory (the
+        online one if there is none) and the ground truth as the MCAP places it."""
+        traj = result.final if len(result.final) else result.online
+        t = traj.t_ns
+        parts = [np.asarray(traj.p, dtype=np.float64).reshape(-1, 3)]
+        gt, T_w_gw = self.source.groundtruth, self.writer.T_world_gtworld
+        if gt is not None and len(gt) and T_w_gw is not None and len(t):
+            inside = (gt.t_ns >= t.min()) & (gt.t_ns <= t.max())  # the part this run covered
+            p = np.asarray(gt.p, dtype=np.float64)[inside]
+            parts.append(p @ T_w_gw[:3, :3].T + T_w_gw[:3, 3])
+        return np.concatenate(parts)
 
     def abort(self) -> Path | None:
         """Stop the writer; the partial MCAP (readable), or None if it could not be finished."""

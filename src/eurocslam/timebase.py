@@ -233,3 +233,15 @@ def unit_hint(ratio: float) -> str:
         3: "timestamps in picoseconds, or rate_hz wrong?",
         9: "seconds and nanoseconds mixed?",
     }.get(e, "wrong rate_hz or wrong time unit?")
+
+
+# Foxglove's own rule (studio-base `isAbsoluteTime`): a time of at most 20 years (of 365 days) in
+# seconds is a duration, not a date: its sidebar then shows the start and end as seconds
+# (`0.000000000`), where a Unix time shows as a date.
+RELATIVE_STAMP_MAX_NS: Final = 20 * 365 * 24 * 3600 * 1_000_000_000
+
+
+def time_base(t_first_ns: int) -> Literal["relative", "unix"]:
+    """ "relative" when a recording's first stamp is a sequence's own clock (KITTI's times.txt
+    from 0 s, a synthetic sequence), "unix" when it is Unix time (EuRoC, a robot's bag)."""
+    return "relative" if t_first_ns <= RELATIVE_STAMP_MAX_NS else "unix"

@@ -2,8 +2,8 @@
 
 argparse's plain `type=float` accepts `nan` and `inf`, which then fail deep inside as an internal
 error; these reject them at the command line with argparse's usual one-line message. The input
-SEQUENCE with `--calib` and `--topic` is read the same way by every command that reads one
-(`add_sequence_arguments`, `source_options`)."""
+SEQUENCE with `--calib`, `--imu-calib` and `--topic` is read the same way by every command that
+reads one (`add_sequence_arguments`, `source_options`)."""
 
 from __future__ import annotations
 
@@ -48,36 +48,58 @@ SEQUENCE_HELP = (
 
 
 def add_sequence_arguments(parser: argparse.ArgumentParser) -> None:
-    """The input SEQUENCE of a command that reads one (ASL folder or bag), with `--calib` and
-    `--topic` for bags."""
+    """The input SEQUENCE of a command that reads one (ASL folder or bag), with `--calib`,
+    `--imu-calib` and `--topic`."""
     parser.add_argument("sequence", help=SEQUENCE_HELP)
     parser.add_argument(
         "--calib",
-        metavar="DIR",
+        metavar="FILE|DIR",
         type=Path,
         default=None,
-        help="folder with cam0/, cam1/ and (optional) imu0/ sensor.yaml files (bags carry no "
-        "calibration; default: an MCAP's attached sensor.yaml, else the built-in EuRoC "
-        "calibration)",
+        help="the calibration to use: a folder with cam0/, cam1/ and (optional) imu0/ "
+        "sensor.yaml files; for ASL folders also a Kalibr camchain.yaml (its imu.yaml beside "
+        "it) or a folder holding one (default: the folder's sensor.yaml, TUM-VI's "
+        "dso/camchain.yaml, a Kalibr camchain beside it; bags: an MCAP's attached sensor.yaml, "
+        "else the bag's CameraInfo and /tf_static, else the built-in EuRoC calibration)",
+    )
+    parser.add_argument(
+        "--imu-calib",
+        metavar="FILE",
+        type=Path,
+        default=None,
+        help="IMU noise figures (a Kalibr imu.yaml or an imu0/sensor.yaml) replacing the "
+        "calibration's; a bag carries none",
     )
     parser.add_argument(
         "--topic",
         metavar="ROLE=TOPIC",
         action="append",
         default=[],
-        help="input bags: read this topic for a role (cam0, cam1, imu, groundtruth, leica), "
-        "e.g. --topic cam0=/my/left; repeatable",
+        help="input bags: read this topic for a role (cam0/left, cam1/right, imu, or accel "
+        "and gyro as separate streams, cam0_info, cam1_info, groundtruth, leica), e.g. "
+        "--topic left=/camera/infra1/image_rect_raw; repeatable (default: EuRoC's names, "
+        "else found by message type)",
     )
 
 
-def source_options(args: argparse.Namespace) -> dict[str, Any]:
-    """`open_sequence` keyword arguments from the options `add_sequence_arguments` added."""
+def source_options(args: argparse.Namespace, imu_config: Any = None) -> dict[str, Any]:
+    """`open_sequence` keyword arguments from the options `add_sequence_arguments` added.
+    IMU noise: `--imu-calib`'s file, else the figures `imu_config` (a run configuration's
+    `imu:` section) sets."""
     from eurocslam.dataset.bag.topics import TopicMap
+    from eurocslam.dataset.imu_noise import load_imu_noise, noise_from_config
 
     specs = getattr(args, "topic", None) or []
+    imu_file = getattr(args, "imu_calib", None)
+    noise = None
+    if imu_file is not None:
+        noise = load_imu_noise(imu_file)
+    elif imu_config is not None:
+        noise = noise_from_config(imu_config)
     return {
         "calib": getattr(args, "calib", None),
         "topics": TopicMap.from_specs(specs) if specs else None,
+        "imu_noise": noise if noise is not None and not noise.empty else None,
     }
 
 

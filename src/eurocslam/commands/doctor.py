@@ -12,8 +12,8 @@ from eurocslam.commands._args import add_sequence_arguments, source_options
 
 NAME = "doctor"
 HELP = (
-    "check an EuRoC or KITTI sequence folder (files, CSVs, timestamps, images, calibration) "
-    "or a bag"
+    "check an EuRoC, TUM-VI or KITTI sequence folder (files, CSVs, timestamps, images, "
+    "calibration) or a bag"
 )
 
 
@@ -52,25 +52,35 @@ def run(args: argparse.Namespace) -> int:
     if is_bag_path(args.sequence):
         report = diagnose_bag(args.sequence, **source_options(args))
     else:
-        if args.topic or args.calib:
+        path = Path(args.sequence)
+        kitti = is_kitti_sequence(path) or is_kitti_root(path)
+        if args.topic or args.imu_calib or (args.calib and kitti):
             print(
-                "eurocslam doctor: error: --calib and --topic apply to bags; a sequence folder "
-                "is checked against its own calibration files",
+                "eurocslam doctor: error: --topic and --imu-calib apply to bags, and a KITTI "
+                "sequence is checked against its own calib.txt (--calib: ASL folders and bags)",
                 file=sys.stderr,
             )
             return 2
         pbar = bar(
             total=None, desc="decoding images", unit="img", enabled=None if args.full else False
         )
-        path = Path(args.sequence)
-        check = diagnose_kitti if is_kitti_sequence(path) or is_kitti_root(path) else diagnose
+
+        def progress(n: int, cam: str) -> None:
+            pbar.update(n)
+
         try:
-            report = check(
-                args.sequence,
-                full=args.full,
-                sample=args.sample,
-                progress=lambda n, cam: pbar.update(n),
-            )
+            if kitti:
+                report = diagnose_kitti(
+                    args.sequence, full=args.full, sample=args.sample, progress=progress
+                )
+            else:
+                report = diagnose(
+                    args.sequence,
+                    full=args.full,
+                    sample=args.sample,
+                    progress=progress,
+                    calib=args.calib,
+                )
         finally:
             pbar.close()
     if args.json:

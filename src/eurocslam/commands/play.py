@@ -6,10 +6,14 @@ import argparse
 import logging
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from eurocslam.commands._args import non_negative_float
 from eurocslam.errors import EurocSlamError
 from eurocslam.timebase import NS_PER_S
+
+if TYPE_CHECKING:
+    from eurocslam.io.playback import McapInfo
 
 NAME = "play"
 HELP = "serve a recorded MCAP (e.g. OUT/run.mcap) live to Foxglove over WebSocket"
@@ -106,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
             f"eurocslam play: serving {info.path} ({info.message_count} messages, {span_s:.1f} s, "
             f"{len(info.channels)} topics) on {sink.url}\n"
             "  In Foxglove: Open connection > Foxglove WebSocket > "
-            f"{sink.url}; layout: Layouts > Import from file > layouts/eurocslam.json"
+            f"{sink.url}; layout: Layouts > Import from file > {_layout_for(info)}"
         )
         if not args.no_wait:
             logger.info("eurocslam play: waiting for a viewer to connect (Ctrl-C to stop)")
@@ -155,3 +159,14 @@ def run(args: argparse.Namespace) -> int:
         return 0
     finally:
         sink.close()
+
+
+def _layout_for(info: McapInfo) -> str:
+    """The run's own layout beside its run.mcap, else the shipped one for its kind of run."""
+    from eurocslam.io.layout import RUN_LAYOUT
+
+    own = Path(info.path).parent / RUN_LAYOUT
+    if own.is_file():
+        return str(own)
+    has_imu = any(c.topic == "/imu0" for c in info.channels.values())
+    return "layouts/eurocslam.json" if has_imu else "layouts/eurocslam-visual.json"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 NAME = "run"
 HELP = "stereo-inertial SLAM: OUT/run.mcap (sensor streams + estimate), trajectories, map"
@@ -23,7 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         required=True,
         metavar="OUT",
         help="output folder (created): run.mcap, trajectory_*.tum/.csv, map.ply, map/, "
-        "config.yaml, summary.json; a previous run's outputs there are replaced",
+        "config.yaml, summary.json, layout.json (this run's Foxglove layout); a previous run's "
+        "outputs there are replaced",
     )
     parser.add_argument(
         "--no-imu",
@@ -103,7 +105,11 @@ def _check_live_args(args: argparse.Namespace) -> None:
         raise EurocSlamError(f"--rate must be >= 0 (0 = as fast as possible), got {args.rate}")
 
 
-def _start_live(args: argparse.Namespace):  # type: ignore[no-untyped-def]
+def _shipped_layout(inertial: bool) -> str:
+    return "eurocslam.json" if inertial else "eurocslam-visual.json"
+
+
+def _start_live(args: argparse.Namespace, inertial: bool):  # type: ignore[no-untyped-def]
     from eurocslam.io.live import DEFAULT_PORT, LiveSink
 
     rate = 1.0 if args.rate is None else args.rate
@@ -115,17 +121,33 @@ def _start_live(args: argparse.Namespace):  # type: ignore[no-untyped-def]
     )
     print(
         f"eurocslam run: live view on {sink.url} (Foxglove: Open connection > Foxglove "
-        "WebSocket; layout: layouts/eurocslam.json)",
+        f"WebSocket; layout: layouts/{_shipped_layout(inertial)})",
         file=sys.stderr,
         flush=True,
     )
     return sink
 
 
+def _foxglove_hint(out: Path, source) -> None:  # type: ignore[no-untyped-def]
+    from eurocslam.convert import sequence_start_ns
+    from eurocslam.io.layout import RUN_LAYOUT
+    from eurocslam.timebase import time_base
+
+    print(
+        f"Foxglove: open {out / 'run.mcap'}, then Layouts > Import from file > {out / RUN_LAYOUT} "
+        "(this run's layout: its panels and 3D framing)"
+    )
+    if time_base(sequence_start_ns(source)) == "relative":
+        print(
+            "note: the stamps start at 0 s (the sequence's own clock): in Foxglove, choose "
+            "Seconds in the time display below the panels to read them as sequence time"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from eurocslam.config import VISUAL_ONLY, load_config
+    from eurocslam.config import VISUAL_ONLY, load_config, resolve_mode
     from eurocslam.frontend.spawn import discard_early, start_early
 
     _check_live_args(args)
@@ -141,11 +163,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         from eurocslam.commands._args import source_options
         from eurocslam.dataset import open_sequence
+        from eurocslam.dataset.types import has_imu
 
         if args.no_imu:
             cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
-        source = open_sequence(args.sequence, **source_options(args))
-        live_sink = _start_live(args) if args.live else None
+        source = open_sequence(args.sequence, **source_options(args, cfg.imu))
+        cfg = resolve_mode(cfg, has_imu(source), source.name)
+        live_sink = _start_live(args, cfg.inertial) if args.live else None
         return _run(args, cfg, source, live_sink)
     finally:  # also on Ctrl-C (the CLI reports it, exit 130) and on errors
         discard_early()  # workers started early that no extraction took
@@ -154,8 +178,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace, cfg, source, live_sink) -> int:  # type: ignore[no-untyped-def]
-    from pathlib import Path
-
     from eurocslam.run_options import RunOptions
     from eurocslam.runner import run_slam
 
@@ -176,7 +198,9 @@ def _run(args: argparse.Namespace, cfg, source, live_sink) -> int:  # type: igno
         print(f"note: {source.skips.total} item(s) skipped while reading:", file=sys.stderr)
         for line in source.skips.lines():
             print(f"  {line}", file=sys.stderr)
-    print(f"outputs in {args.output}")
+    if opts.mcap:
+        _foxglove_hint(Path(args.output), source)
+    print(f"outputs in {args.output}")  # the last line (scripts read it)
     if live_sink is not None and live_sink.n_clients > 0:
         print(
             "eurocslam run: the live view keeps the final state until the viewer disconnects "

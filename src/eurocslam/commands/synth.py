@@ -27,7 +27,7 @@ _SWITCHES = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from eurocslam.synth.spec import SynthSpec
+    from eurocslam.synth.spec import RIGS, SynthSpec
 
     d = SynthSpec()
     p.add_argument("out", type=Path, metavar="OUT", help="output sequence folder (gets mav0/)")
@@ -85,6 +85,53 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="FOLDER",
         help="folder with cam0/cam1/imu0 sensor.yaml (default: EuRoC's, built in)",
     )
+    p.add_argument(
+        "--rig",
+        choices=RIGS,
+        default="euroc",
+        help="euroc: EuRoC's cameras and IMU (or --calib's), an EuRoC ASL folder; tumvi: "
+        "TUM-VI's 512x512 stereo fisheye (equidistant, ~0.10 m baseline) and IMU, 20 Hz "
+        "images, 200 Hz IMU, written as a TUM-VI folder (dso/camchain.yaml, mav0/mocap0); "
+        "realsense: a RealSense-like 848x480 infrared pair at 30 Hz, ~5 cm baseline, gyro 400 Hz, "
+        "accelerometer apart at 250 Hz, an EuRoC ASL folder; with --trajectory a rig's cam0 "
+        "flies where EuRoC's cam0 does (default: euroc)",
+    )
+    p.add_argument(
+        "--imu-rate",
+        type=finite_float,
+        default=None,
+        metavar="HZ",
+        help="IMU (gyro) rate instead of the calibration's (e.g. 200 for a RealSense)",
+    )
+    p.add_argument(
+        "--accel-rate",
+        type=finite_float,
+        default=None,
+        metavar="HZ",
+        help="the accelerometer as a separate stream at this rate, united onto the gyro's "
+        "stamps in imu0/ (both streams also in accel0/, gyro0/); --rig realsense: 250",
+    )
+    bags = p.add_argument_group("robot-style bags (written after the ASL folder, in OUT/bags/)")
+    bags.add_argument(
+        "--bag",
+        action="append",
+        default=[],
+        choices=("ros1", "ros2-db3", "ros2-mcap"),
+        help="also write the sequence as a realsense-ros style bag: CameraInfo and /tf_static "
+        "only, no sensor.yaml (repeatable)",
+    )
+    bags.add_argument(
+        "--bag-images",
+        choices=("raw", "rect", "both"),
+        default="raw",
+        help="raw images (K, D, R/P) or rectified as a driver does (image_rect_raw); default raw",
+    )
+    bags.add_argument(
+        "--bag-imu",
+        choices=("united", "split", "both"),
+        default="split",
+        help="one /camera/imu topic or /camera/accel/sample + /camera/gyro/sample (default)",
+    )
     for flag, field, text in _SWITCHES:
         default = getattr(d, field)
         p.add_argument(
@@ -121,7 +168,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def spec_from_args(args: argparse.Namespace) -> SynthSpec:
     from eurocslam.errors import DatasetError
-    from eurocslam.synth.spec import TINY_DURATION_S, SynthSpec
+    from eurocslam.synth.spec import REALSENSE_ACCEL_HZ, TINY_DURATION_S, SynthSpec
 
     duration = args.duration
     if args.tiny and duration is None:
@@ -135,6 +182,9 @@ def spec_from_args(args: argparse.Namespace) -> SynthSpec:
         if not 0 <= a < b:
             raise DatasetError(f"--blackout {args.blackout}: need 0 <= START < END")
         blackout = (a, b)
+    accel_rate = args.accel_rate
+    if accel_rate is None and args.rig == "realsense":
+        accel_rate = REALSENSE_ACCEL_HZ
     spec = SynthSpec(
         duration_s=duration,
         seed=args.seed,
@@ -143,6 +193,9 @@ def spec_from_args(args: argparse.Namespace) -> SynthSpec:
         start_s=args.start,
         end_s=args.end,
         calib=args.calib,
+        rig=args.rig,
+        imu_rate_hz=args.imu_rate,
+        accel_rate_hz=accel_rate,
         blackout=blackout,
         world_from=tuple(args.world_from) if args.world_from else None,
         **{field: getattr(args, field) for _, field, _ in _SWITCHES},
@@ -161,6 +214,9 @@ def run(args: argparse.Namespace) -> int:
     spec = spec_from_args(args)
     out = synthesize(spec, args.out, workers=args.workers, overwrite=args.force)
     summary = json.loads((out / "synth.json").read_text())
+    written = write_bags(out, args, "calib" if spec.calib else spec.rig)
+    if written:
+        summary["bags"] = [str(b) for b in written]
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
         return 0
@@ -184,5 +240,37 @@ def run(args: argparse.Namespace) -> int:
         f"  render   {s['render_wall_s']:.1f} s with {s['workers']} worker(s), "
         f"{s['render_cpu_ms_per_pair']:.0f} ms CPU per stereo pair"
     )
-    print(f"  next     eurocslam doctor {out}")
+    for b in written:
+        print(f"  bag      {b}")
+    print(f"  next     eurocslam doctor {written[0] if written else out}")
     return 0
+
+
+def write_bags(out: Path, args: argparse.Namespace, rig_name: str) -> list[Path]:
+    """The realsense-style bags asked for (`--bag`, `--bag-images`, `--bag-imu`), written from
+    the ASL folder just made into OUT/bags/; returns their paths."""
+    from eurocslam.dataset.asl import AslSequence
+    from eurocslam.dataset.bag.realsense_writer import RealsenseBagOptions, write_realsense_bag
+    from eurocslam.dataset.split_imu import read_split_imu
+
+    if not args.bag:
+        return []
+    seq = AslSequence(out)
+    split = read_split_imu(seq.mav0)
+    images = ("raw", "rect") if args.bag_images == "both" else (args.bag_images,)
+    imus = ("united", "split") if args.bag_imu == "both" else (args.bag_imu,)
+    folder = out / "bags"
+    folder.mkdir(exist_ok=True)
+    written = []
+    for fmt in dict.fromkeys(args.bag):
+        for im in images:
+            for iu in imus:
+                name = f"{rig_name}_{im}_{iu}_{fmt.replace('-', '_')}"
+                path = folder / (name + ".bag" if fmt == "ros1" else name)
+                if path.exists():
+                    import shutil
+
+                    shutil.rmtree(path) if path.is_dir() else path.unlink()
+                opts = RealsenseBagOptions(images=im, imu=iu)
+                written.append(write_realsense_bag(seq, path, fmt, opts, split=split))
+    return written

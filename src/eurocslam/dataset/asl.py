@@ -1,7 +1,12 @@
-"""EuRoC ASL folder reader: `mav0/{cam0,cam1,imu0,state_groundtruth_estimate0,leica0}`.
+"""EuRoC ASL folder reader: `mav0/{cam0,cam1,imu0,state_groundtruth_estimate0,leica0}`, and
+TUM-VI's folders in the same format (`mav0/mocap0` ground truth, `dso/camchain.yaml`).
 
 A folder without `imu0/` is a stereo-only sequence: no IMU rows, a rig without an IMU
-calibration (it runs visual-only). An `imu0/` folder must hold its sensor.yaml and rows.
+calibration (it runs visual-only). An `imu0/` folder must hold its rows. The calibration is
+found by `calib_sources.sequence_calibration` (EuRoC sensor.yaml files, TUM-VI's dso/, a Kalibr
+camchain beside the folder, or `--calib`); how it was found is in `notes`. The ground truth is
+`state_groundtruth_estimate0` (EuRoC, 17 columns) or `mocap0` (TUM-VI: the IMU's pose from the
+motion-capture room, 8 columns, only where the room sees it).
 
 Streams images lazily (memory does not grow with sequence length). Stereo pairs are joined on
 timestamp, never on position. Listed-but-missing images, unreadable PNGs and frames present in
@@ -26,7 +31,13 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from eurocslam.dataset.calib import StereoRig, load_rig
+from eurocslam.dataset.calib import StereoRig
+from eurocslam.dataset.calib_sources import (
+    SENSOR_YAML,
+    CalibrationSource,
+    check_image_sizes,
+    sequence_calibration,
+)
 from eurocslam.dataset.types import (
     I64,
     U8,
@@ -43,6 +54,8 @@ from eurocslam.textfile import read_text
 from eurocslam.timebase import NS_PER_S, magnitude, parse_timestamp, unit_outliers
 
 SENSORS = ("cam0", "cam1", "imu0", "state_groundtruth_estimate0", "leica0")
+# ground-truth folders, preferred first, and their columns (timestamp included)
+GROUNDTRUTH_FOLDERS = (("state_groundtruth_estimate0", 17), ("mocap0", 8))
 
 
 def resolve_mav0(path: Path | str) -> Path:
@@ -311,16 +324,26 @@ class ImageFileFrames:
 class AslSequence(ImageFileFrames):
     """An EuRoC ASL sequence folder. Implements `SequenceSource`."""
 
-    def __init__(self, path: Path | str, rig: StereoRig | None = None) -> None:
+    def __init__(
+        self, path: Path | str, rig: StereoRig | None = None, *, calib: Path | str | None = None
+    ) -> None:
         self.mav0 = resolve_mav0(path)
         self.root = self.mav0.parent if self.mav0.name == "mav0" else self.mav0
         self.name = self.root.name
         self.skips = SkipReport()
-        self.rig = rig if rig is not None else load_rig(self.mav0)
+        self.notes: list[str] = []
+        self.calibration: CalibrationSource | None = None  # None: a rig given by the caller
+        if rig is None:
+            loaded = sequence_calibration(self.mav0, Path(calib) if calib is not None else None)
+            rig, self.calibration = loaded.rig, loaded.source
+            self.notes += loaded.notes
+        self.rig = rig
+        self.groundtruth_path: Path | None = None
         self.imu = self._read_imu()
         self.groundtruth = self._read_groundtruth()
         self.leica = self._read_leica()
         self.entries = self._join_cameras()
+        self._check_image_size()
 
     @property
     def has_imu(self) -> bool:
@@ -350,10 +373,16 @@ class AslSequence(ImageFileFrames):
         return ImuData(t, np.ascontiguousarray(v[:, 0:3]), np.ascontiguousarray(v[:, 3:6]))
 
     def _read_groundtruth(self) -> GroundTruth | None:
-        path = self.mav0 / "state_groundtruth_estimate0" / "data.csv"
-        if not path.exists():
+        found = [
+            (self.mav0 / f / "data.csv", n)
+            for f, n in GROUNDTRUTH_FOLDERS
+            if (self.mav0 / f / "data.csv").exists()
+        ]
+        if not found:
             return None
-        tab = read_numeric_csv(path, 17, self.skips)
+        path, ncols = found[0]
+        self.groundtruth_path = path
+        tab = read_numeric_csv(path, ncols, self.skips)
         if tab.t_ns.size == 0:
             self.skips.add("empty ground-truth file (ignored)", str(path))
             return None
@@ -364,13 +393,14 @@ class AslSequence(ImageFileFrames):
         except ValueError:
             bad = int(np.argmin(np.linalg.norm(v[:, 3:7], axis=1)))
             raise DatasetError(f"{path}:{tab.line_numbers[idx][bad]}: zero quaternion") from None
+        full = ncols == 17  # velocity and biases too
         return GroundTruth(
             t_ns=tab.t_ns[idx],
             p=v[:, 0:3].copy(),
             q_wxyz=q,
-            v=v[:, 7:10].copy(),
-            bg=v[:, 10:13].copy(),
-            ba=v[:, 13:16].copy(),
+            v=v[:, 7:10].copy() if full else None,
+            bg=v[:, 10:13].copy() if full else None,
+            ba=v[:, 13:16].copy() if full else None,
         )
 
     def _read_leica(self) -> PositionData | None:
@@ -433,6 +463,17 @@ class AslSequence(ImageFileFrames):
             entries.append(FrameEntry(t, left, right))
         return entries
 
+    def _check_image_size(self) -> None:
+        """Refuse a calibration whose image size no image has (`check_image_sizes`): the first,
+        middle and last readable image of each camera (one odd image is skipped and counted)."""
+        sizes: dict[str, list[tuple[int, int, Path]]] = {}
+        for cam in ("cam0", "cam1"):
+            present = [p for e in self.entries if (p := e.left if cam == "cam0" else e.right)]
+            picks = {present[0], present[len(present) // 2], present[-1]} if present else set()
+            imgs = [(decode_image(p).image, p) for p in sorted(picks)]
+            sizes[cam] = [(im.shape[1], im.shape[0], p) for im, p in imgs if im is not None]
+        check_image_sizes(self.rig, self.calibration, sizes)
+
     def _check_time_units(self, t_cam0: I64, t_cam1: I64) -> None:
         """Refuse streams whose timestamps differ by orders of magnitude (s vs ns mix-ups)."""
         streams: dict[Path, I64] = {
@@ -440,8 +481,8 @@ class AslSequence(ImageFileFrames):
             self.mav0 / "cam0" / "data.csv": t_cam0,
             self.mav0 / "cam1" / "data.csv": t_cam1,
         }
-        if self.groundtruth is not None:
-            streams[self.mav0 / "state_groundtruth_estimate0" / "data.csv"] = self.groundtruth.t_ns
+        if self.groundtruth is not None and self.groundtruth_path is not None:
+            streams[self.groundtruth_path] = self.groundtruth.t_ns
         if self.leica is not None:
             streams[self.mav0 / "leica0" / "data.csv"] = self.leica.t_ns
         mags = {p: magnitude(t) for p, t in streams.items() if t.size}
@@ -461,6 +502,12 @@ class AslSequence(ImageFileFrames):
     @property
     def complete_entries(self) -> list[FrameEntry]:
         return [e for e in self.entries if e.left is not None and e.right is not None]
+
+    @property
+    def calibration_is_own(self) -> bool:
+        """The rig is the folder's own mav0/*/sensor.yaml (or one the caller gave)."""
+        src = self.calibration
+        return src is None or (src.kind == SENSOR_YAML and src.path == self.mav0)
 
     def sensor_yaml_paths(self) -> dict[str, Path]:
         out = {}

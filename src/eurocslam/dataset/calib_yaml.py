@@ -1,11 +1,12 @@
-"""Writing a camera calibration as an EuRoC-style `sensor.yaml` (for sources that carry their
-calibration in another form, e.g. KITTI's calib.txt: MCAP attachments, ASL copies)."""
+"""Writing a calibration as EuRoC-style `sensor.yaml` files (for sources that carry their
+calibration in another form, e.g. KITTI's calib.txt, a Kalibr camchain: MCAP attachments, ASL
+copies)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from eurocslam.dataset.calib import CameraCalib
+from eurocslam.dataset.calib import CameraCalib, ImuCalib
 
 
 def _yaml_float(v: float) -> str:
@@ -33,5 +34,25 @@ def camera_yaml_text(cam: CameraCalib, comment: str = "") -> str:
         f"intrinsics: [{intr}]",
         f"distortion_model: {cam.distortion_model}",
         f"distortion_coefficients: [{dist}]",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def imu_yaml_text(imu: ImuCalib, comment: str = "") -> str:
+    """An EuRoC-style imu0 `sensor.yaml` for `imu` that `imu_from_yaml` reads back exactly."""
+    T = ", ".join(_yaml_float(v) for v in np.asarray(imu.T_body_imu, dtype=np.float64).ravel())
+    lines = [
+        "%YAML:1.0",
+        "sensor_type: imu",
+        f"comment: {comment or 'imu0'}",
+        "T_BS:",
+        "  cols: 4",
+        "  rows: 4",
+        f"  data: [{T}]",
+        f"rate_hz: {_yaml_float(imu.rate_hz)}",
+        f"gyroscope_noise_density: {_yaml_float(imu.gyro_noise_density)}",
+        f"gyroscope_random_walk: {_yaml_float(imu.gyro_random_walk)}",
+        f"accelerometer_noise_density: {_yaml_float(imu.accel_noise_density)}",
+        f"accelerometer_random_walk: {_yaml_float(imu.accel_random_walk)}",
     ]
     return "\n".join(lines) + "\n"

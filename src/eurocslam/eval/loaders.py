@@ -10,7 +10,8 @@ Estimate inputs:
   `PoseWithCovarianceStamped`, `nav_msgs/Odometry`, `nav_msgs/Path` (last message) or
   `tf2_msgs/TFMessage` topic (`child_frame` picks the transform, as in `--child-frame`).
 
-Ground-truth inputs: an EuRoC sequence folder (`mav0/state_groundtruth_estimate0/data.csv`), that
+Ground-truth inputs: an EuRoC sequence folder (`mav0/state_groundtruth_estimate0/data.csv`), a
+TUM-VI one (`mav0/mocap0/data.csv`: the IMU's pose where the motion-capture room sees it), that
 `data.csv`, a TUM file, an MCAP topic (default `/groundtruth/pose`), or KITTI's `poses/NN.txt`
 (or its sequence folder `sequences/NN`), stamped by the sequence's `times.txt` (`kitti_gt`).
 
@@ -336,10 +337,14 @@ def load_estimates(
 
 
 def groundtruth_csv_of(folder: Path) -> Path | None:
-    """`state_groundtruth_estimate0/data.csv` of an EuRoC sequence folder (or its mav0)."""
+    """The ground truth of an EuRoC sequence folder (or its mav0): `state_groundtruth_estimate0`,
+    else TUM-VI's `mocap0`."""
     for cand in (
-        folder / "mav0" / "state_groundtruth_estimate0" / "data.csv",
-        folder / "state_groundtruth_estimate0" / "data.csv",
+        *(
+            base / gt / "data.csv"
+            for gt in ("state_groundtruth_estimate0", "mocap0")
+            for base in (folder / "mav0", folder)
+        ),
         folder / "data.csv",
     ):
         if cand.is_file():
@@ -371,7 +376,7 @@ def load_groundtruth(
                 return load_groundtruth(mc, topic, child_frame, time_unit)
             raise EvalError(
                 f"{path}: no ground truth in this folder (expected "
-                "mav0/state_groundtruth_estimate0/data.csv)"
+                "mav0/state_groundtruth_estimate0/data.csv or TUM-VI's mav0/mocap0/data.csv)"
             )
         path = csv
     if is_mcap(path):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from eurocslam.errors import ConfigError
 from eurocslam.limits import check_limits, limited
 
 
@@ -32,6 +33,16 @@ class FrontendConfig:
     # ---- stereo rectification and matching (stereo.py, matching.py) ----------------------
     # cv2.stereoRectify alpha: 0 = only valid pixels
     rectify_alpha: float = limited(0.0, ge=0, le=1)
+    # a rig whose cameras are not pinholes (a fisheye) is rectified through its camera models to
+    # a pinhole of this horizontal field of view [deg], capped at the widest whose every pixel
+    # both cameras see (camera.rectify_by_model); 0: the field of view at which the rectified
+    # image keeps cam0's focal length (camera.centre_keeping_fov_deg: TUM-VI 106.6 deg); pinhole
+    # rigs take `rectify_alpha` instead
+    rectify_fov_deg: float = limited(120.0, ge=0, lt=180)  # 0, or >= 10
+    # the rectified images' size for such a rig: "image", the raw image's (the focal length
+    # follows from the field of view); "focal", the size that keeps cam0's own focal length
+    # (the centre's resolution), growing with the field of view (camera.rectified_size)
+    rectify_size: str = "image"
     # the disparity window, from the rig: from `stereo_min_disparity_px` (the farthest points a
     # stereo match can measure; 1 px: 48 m on EuRoC, 386 m on KITTI) up to the disparity of a
     # point `stereo_min_depth_baselines` baselines away (fx / that: 218 px on EuRoC)
@@ -67,7 +78,9 @@ class FrontendConfig:
     # ---- map management --------------------------------------------------------------------
     max_new_landmarks_per_keyframe: int = 400
     # close and far stereo points (ORB-SLAM's rule, 40 baselines: 4.4 m on EuRoC, 22 m on
-    # KITTI): beyond, a depth rests on a disparity of a few pixels, and the tenths of a pixel
+    # KITTI, a disparity of fx / 40: 10.9 px and 18 px, a parallax angle of 1/40 rad on any rig;
+    # no cut from the disparity noise did better on both, RESULTS.md "The far-point rule at two
+    # baselines"): beyond, a depth rests on a disparity of a few pixels, and the tenths of a pixel
     # of bias a real rig's rectification leaves (a render does not) make it tens of percent
     # wrong at 1 px; such far points start landmarks only to make up `min_new_landmarks`
     # (closest first). 0: every stereo point alike. Visual-only runs take it (scale comes from
@@ -125,3 +138,8 @@ class FrontendConfig:
     def validate(self, origin: str = "<config>") -> None:
         """Every value within its limits (`eurocslam.limits`)."""
         check_limits(self, "frontend", origin)
+        if 0 < self.rectify_fov_deg < 10:
+            raise ConfigError(
+                f"{origin}: key 'frontend.rectify_fov_deg' value {self.rectify_fov_deg!r} out of "
+                "range (must be 0 or >= 10)"
+            )

@@ -94,7 +94,9 @@ class Extractor:
     def __init__(self, rig: StereoRig, config: FrontendConfig) -> None:
         self.rig = rig
         self.config = config
-        self.rectifier = StereoRectifier(rig, config.rectify_alpha)
+        self.rectifier = StereoRectifier(
+            rig, config.rectify_alpha, config.rectify_fov_deg, config.rectify_size
+        )
         self.scale = pyramid_scales(config)
         self._local = threading.local()
 
@@ -115,10 +117,9 @@ class Extractor:
         None."""
         c = self.config
         problem = image_problem(frame.left, c) or image_problem(frame.right, c)
-        g = self.geometry
-        if problem is None and (
-            _shape(frame.left) != (g.height, g.width) or _shape(frame.right) != (g.height, g.width)
-        ):
+        hw0 = (self.rig.cam0.height, self.rig.cam0.width)  # the raw images' size
+        hw1 = (self.rig.cam1.height, self.rig.cam1.width)
+        if problem is None and (_shape(frame.left) != hw0 or _shape(frame.right) != hw1):
             problem = FrameProblem.SIZE
         return problem
 

@@ -3,7 +3,9 @@
 The rectification itself (R, P of both cameras and the `RectifiedStereo` geometry) comes from
 `eurocslam.camera.rectify_stereo`, the same function the CameraInfo messages use. Remap tables
 are computed once. A rig that is rectified already (`rectification.passthrough`) is not
-remapped: its images are used as they are and points map to themselves.
+remapped: its images are used as they are and points map to themselves. Pinhole cameras use
+OpenCV's pinhole functions (`cv2.initUndistortRectifyMap`, iterated `cv2.undistortPoints`);
+other models (a fisheye) their own `project` / `unproject` (`CameraCalib.model`).
 """
 
 from __future__ import annotations
@@ -13,8 +15,8 @@ from typing import cast
 import cv2
 import numpy as np
 
-from eurocslam.camera import rectify_stereo
-from eurocslam.dataset.calib import StereoRig
+from eurocslam.camera import rect_to_raw, rectify_stereo
+from eurocslam.dataset.calib import CameraCalib, StereoRig
 from eurocslam.dataset.types import U8
 from eurocslam.geometry import F64
 
@@ -22,11 +24,18 @@ from eurocslam.geometry import F64
 class StereoRectifier:
     """Rectifies stereo pairs of one rig. Thread-safe after construction (read-only maps)."""
 
-    def __init__(self, rig: StereoRig, alpha: float = 0.0) -> None:
+    def __init__(
+        self,
+        rig: StereoRig,
+        alpha: float = 0.0,
+        fov_deg: float | None = None,
+        rect_size: str = "image",
+    ) -> None:
         c0, c1 = rig.cam0, rig.cam1
         self.rig = rig
-        size = (c0.width, c0.height)
-        self.rectification = rect = rectify_stereo(rig, alpha)
+        self.rectification = rect = rectify_stereo(rig, alpha, fov_deg, rect_size)
+        size = (rect.geometry.width, rect.geometry.height)  # the rectified images' size
+        self._by_model = not (c0.model.perspective and c1.model.perspective)
         self.R_rect0_cam0: F64 = rect.R_rect0_cam0
         self.R_rect1_cam1: F64 = rect.R_rect1_cam1
         self.P0: F64 = rect.P0
@@ -35,7 +44,13 @@ class StereoRectifier:
         self.passthrough = rect.passthrough
         self._map0: tuple[np.ndarray, np.ndarray] | None = None
         self._map1: tuple[np.ndarray, np.ndarray] | None = None
-        if not self.passthrough:
+        # rectified pixels per raw pixel over rect0 (None: about one everywhere, a pinhole rig)
+        self._stretch: F64 | None = None
+        if self._by_model:
+            self._map0 = model_rectify_map(c0, rect.R_rect0_cam0, rect.P0, size)
+            self._map1 = model_rectify_map(c1, rect.R_rect1_cam1, rect.P1, size)
+            self._stretch = rect_stretch(c0, rect.R_rect0_cam0, rect.P0, size)
+        elif not self.passthrough:
             self._map0 = cv2.initUndistortRectifyMap(
                 c0.K, c0.D, rect.R_rect0_cam0, rect.P0, size, cv2.CV_16SC2
             )
@@ -47,6 +62,21 @@ class StereoRectifier:
     @property
     def size(self) -> tuple[int, int]:
         return self._size
+
+    def sigma_scale(self, uv_rect: F64) -> F64:
+        """How many rectified pixels one raw pixel spans at each rectified cam0 point (at least
+        1: a keypoint is located to about a pixel of the image it was detected on, and to about
+        a pixel of the raw image it was resampled from). A fisheye rectified to a pinhole
+        stretches its raw pixels over 1.3-3 rectified ones (TUM-VI at 90-120 degrees), so a
+        measurement there is that many times less precise; 1 for a pinhole rig, whose
+        rectification resamples about one to one."""
+        uv = np.asarray(uv_rect, dtype=np.float64).reshape(-1, 2)
+        if self._stretch is None:
+            return np.ones(len(uv))
+        h, w = self._stretch.shape
+        col = np.clip(np.rint(uv[:, 0]).astype(np.intp), 0, w - 1)
+        row = np.clip(np.rint(uv[:, 1]).astype(np.intp), 0, h - 1)
+        return np.asarray(np.maximum(self._stretch[row, col], 1.0), dtype=np.float64)
 
     def rectify_left(self, img: U8) -> U8:
         if self._map0 is None:  # rectified already
@@ -66,6 +96,8 @@ class StereoRectifier:
             return np.zeros((0, 2))
         if self.passthrough:
             return cast(F64, pts.reshape(-1, 2).copy())
+        if self._by_model:
+            return raw_to_rect(pts.reshape(-1, 2), c0, self.R_rect0_cam0, self.P0)
         out = undistort_points(pts, c0.K, c0.D, self.R_rect0_cam0, self.P0)
         return np.asarray(out.reshape(-1, 2), dtype=np.float64)
 
@@ -76,6 +108,8 @@ class StereoRectifier:
             return np.zeros((0, 2))
         if self.passthrough:
             return cast(F64, uv.copy())
+        if self._by_model:
+            return rect_to_raw(uv, self.P0, self.R_rect0_cam0, self.rig.cam0)
         g = self.geometry
         rays_rect = np.column_stack(
             [(uv[:, 0] - g.cx) / g.fx, (uv[:, 1] - g.cy) / g.fy, np.ones(len(uv))]
@@ -91,3 +125,48 @@ def undistort_points(pts: F64, K: F64, D: F64, R: F64, P: F64) -> F64:
     0.2 px in EuRoC's image corners)."""
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-9)
     return np.asarray(cv2.undistortPoints(pts, K, D, R=R, P=P, criteria=crit), dtype=np.float64)
+
+
+def model_rectify_map(
+    cam: CameraCalib, R_rect_cam: F64, P: F64, size: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """`cv2.remap` tables (CV_16SC2, as `cv2.initUndistortRectifyMap` gives) from a rectified
+    camera's pixels to its raw pixels, through `cam.model`; pixels without a ray read outside
+    the image (black)."""
+    w, h = size
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    raw = rect_to_raw(np.column_stack([u.ravel(), v.ravel()]), P, R_rect_cam, cam)
+    raw = np.where(np.isfinite(raw), raw, -1.0)
+    mx = raw[:, 0].reshape(h, w).astype(np.float32)
+    my = raw[:, 1].reshape(h, w).astype(np.float32)
+    m1, m2 = cv2.convertMaps(mx, my, cv2.CV_16SC2)
+    return np.asarray(m1), np.asarray(m2)
+
+
+def raw_to_rect(uv_raw: F64, cam: CameraCalib, R_rect_cam: F64, P: F64) -> F64:
+    """Rectified pixels (N, 2) of raw pixels, through `cam.model` (NaN for a ray the rectified
+    pinhole cannot see: behind its image plane)."""
+    rays = cam.model.unproject(uv_raw) @ R_rect_cam.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv_z = np.where(rays[:, 2] > 0, 1.0 / rays[:, 2], np.nan)
+    return np.column_stack(
+        [P[0, 0] * rays[:, 0] * inv_z + P[0, 2], P[1, 1] * rays[:, 1] * inv_z + P[1, 2]]
+    )
+
+
+def rect_stretch(cam: CameraCalib, R_rect_cam: F64, P: F64, size: tuple[int, int]) -> F64:
+    """(h, w) map of rectified pixels per raw pixel (the square root of the area ratio) over a
+    rectified camera's image, from the model's projection Jacobian."""
+    w, h = size
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    rays_rect = np.column_stack(
+        [(u.ravel() - P[0, 2]) / P[0, 0], (v.ravel() - P[1, 2]) / P[1, 1], np.ones(u.size)]
+    )
+    _, J = cam.model.project_jacobian(rays_rect @ R_rect_cam)  # d raw / d ray_cam (N, 2, 3)
+    # d ray_cam / d (u, v) = R^T [[1/fx, 0], [0, 1/fy], [0, 0]]
+    D = R_rect_cam.T[:, :2] / np.array([P[0, 0], P[1, 1]])
+    A = J @ D  # d raw / d rect (N, 2, 2)
+    det = np.abs(A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        stretch = 1.0 / np.sqrt(det)
+    return np.asarray(np.nan_to_num(stretch, nan=1.0, posinf=1.0).reshape(h, w), dtype=np.float64)

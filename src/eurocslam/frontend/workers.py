@@ -90,7 +90,7 @@ class _Done:
     """A worker's last message, after the None that ends it: what the worker cost."""
 
     peak_rss_mb: float
-    cpu_s: float  # the worker process's CPU time (user + system)
+    cpu_s: float  # the worker process's CPU time (user + system) since it took its setup
 
 
 @dataclass(frozen=True)
@@ -112,6 +112,9 @@ def _worker_main(conn: Connection) -> None:
         setup: _Setup = conn.recv()
     except (EOFError, OSError):
         return
+    # the run's work only: not the imports before the setup (a worker started early imports
+    # while the parent starts, outside the run's wall clock)
+    cpu0 = time.process_time()
     n_slots, shape = setup.n_slots, setup.shape
     extractor = Extractor(setup.rig, setup.config)
     shm = _attach(setup.shm_name)
@@ -126,7 +129,7 @@ def _worker_main(conn: Connection) -> None:
                 conn.send(_WorkerFailure(traceback.format_exc()))
                 return
             conn.send(ff)
-        conn.send(_Done(peak_rss_mb(), time.process_time()))
+        conn.send(_Done(peak_rss_mb(), time.process_time() - cpu0))
     except (EOFError, OSError):
         pass  # the parent went away
     finally:
@@ -158,11 +161,11 @@ class ExtractionWorkers:
 
     def __init__(self, extractor: Extractor, n_workers: int) -> None:
         self.extractor = extractor
-        g = extractor.geometry
-        self.shape = (g.height, g.width)
+        c0 = extractor.rig.cam0  # the raw images' size (a fisheye's rectified ones may differ)
+        self.shape = (c0.height, c0.width)
         n_slots = SLOTS_PER_WORKER * max(1, int(n_workers))
         self._shm: shared_memory.SharedMemory | None = shared_memory.SharedMemory(
-            create=True, size=n_slots * 2 * g.height * g.width
+            create=True, size=n_slots * 2 * c0.height * c0.width
         )
         self._images = np.ndarray((n_slots, 2, *self.shape), np.uint8, buffer=self._shm.buf)
         self._free: queue.Queue[int] = queue.Queue()

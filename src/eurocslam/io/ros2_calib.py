@@ -32,26 +32,23 @@ class CameraInfoData:
 
 
 def stereo_camera_infos(
-    rig: StereoRig, alpha: float = 0.0
+    rig: StereoRig, alpha: float = 0.0, fov_deg: float | None = None, size: str = "image"
 ) -> tuple[CameraInfoData, CameraInfoData]:
-    """CameraInfo for cam0 and cam1: K, D (plumb_bob) and R/P of `rectify_stereo(rig, alpha)`
-    (zero disparity at infinity). cam1's P[0, 3] = -fx' * baseline, as in ROS."""
-    rect = rectify_stereo(rig, alpha)
+    """CameraInfo for cam0 and cam1: K, the camera model's distortion (`plumb_bob` with 5
+    coefficients for a pinhole camera, `equidistant` with k1..k4 for a fisheye) and R/P of
+    `rectify_stereo(rig, alpha, fov_deg, size)` (zero disparity at infinity; with size "focal"
+    the rectified images are larger than the raw ones: P is theirs). cam1's
+    P[0, 3] = -fx' * baseline, as in ROS."""
+    rect = rectify_stereo(rig, alpha, fov_deg, size)
     return _info(rig.cam0, rect.R_rect0_cam0, rect.P0), _info(rig.cam1, rect.R_rect1_cam1, rect.P1)
-
-
-def _plumb_bob(c: CameraCalib) -> F64:
-    d = np.zeros(5)
-    d[: len(c.distortion)] = c.distortion
-    return d
 
 
 def _info(c: CameraCalib, R: F64, P: F64) -> CameraInfoData:
     return CameraInfoData(
         c.width,
         c.height,
-        "plumb_bob",
-        _plumb_bob(c),
+        c.model.ros_name,
+        c.model.ros_coeffs(),
         c.K.copy(),
         np.asarray(R, dtype=np.float64),
         np.asarray(P, dtype=np.float64),

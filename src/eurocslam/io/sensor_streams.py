@@ -86,8 +86,8 @@ def all_topics(mode: str = "raw", imu: bool = True) -> tuple[str, ...]:
 class StreamOptions:
     """`topics`: None for all, else a subset of `all_topics(images)` (in png/jpeg mode
     '/camN/image_raw' also selects '/camN/image_raw/compressed'). Times are int64 ns, inclusive.
-    `rectify_alpha`: the stereo rectification the CameraInfo R/P describe (a SLAM run passes the
-    frontend's `rectify_alpha`, so they match the images it tracked)."""
+    `rectify_alpha`, `rectify_fov_deg`, `rectify_size`: the stereo rectification the CameraInfo
+    R/P describe (a SLAM run passes the frontend's, so they match the images it tracked)."""
 
     topics: frozenset[str] | None = None
     images: str = "raw"
@@ -97,6 +97,8 @@ class StreamOptions:
     gt_path_period_ns: int = 1_000_000_000
     gt_path_pose_period_ns: int = 100_000_000
     rectify_alpha: float = 0.0
+    rectify_fov_deg: float | None = None  # None: camera.DEFAULT_RECTIFY_FOV_DEG
+    rectify_size: str = "image"
 
 
 @dataclass(frozen=True)
@@ -150,7 +152,13 @@ class SensorStreams:
 
         rig = source.rig
         self.infos = dict(
-            zip(CAMS, ros2_calib.stereo_camera_infos(rig, opt.rectify_alpha), strict=True)
+            zip(
+                CAMS,
+                ros2_calib.stereo_camera_infos(
+                    rig, opt.rectify_alpha, opt.rectify_fov_deg, opt.rectify_size
+                ),
+                strict=True,
+            )
         )
         self.static_transforms = [
             (FRAME_BODY, "cam0", rig.cam0.T_body_cam),

@@ -103,6 +103,7 @@ def _camera_record(c: CameraCalib) -> dict[str, Any]:
     return {
         "resolution": [c.width, c.height],
         "intrinsics": [c.fx, c.fy, c.cx, c.cy],
+        "distortion_model": c.distortion_model,
         "distortion": list(c.distortion),
         "T_body_cam": np.asarray(c.T_body_cam).reshape(-1).tolist(),
     }
@@ -125,6 +126,9 @@ def rig_mismatch(saved: dict[str, Any], rig: StereoRig) -> str | None:
         a, b = saved.get(cam), now[cam]
         if not isinstance(a, dict):
             return f"no {cam} in the map's rig"
+        model_a = a.get("distortion_model")  # maps saved before it was recorded lack it
+        if model_a is not None and model_a != b["distortion_model"]:
+            return f"{cam} distortion model '{model_a}' in the map, '{b['distortion_model']}' here"
         for key in ("resolution", "intrinsics", "distortion", "T_body_cam"):
             va = np.asarray(a.get(key, []), dtype=np.float64)
             vb = np.asarray(b[key], dtype=np.float64)

@@ -7,9 +7,8 @@ questions, each answered with a verified match and turned here into a pose in a 
   The match says where the query is in that frame; the difference with where the estimate puts
   it is the drift, a `LoopFix`. It is acted on once `loop_consistency` consecutive keyframes
   agree on it, it is larger than what map reuse's projection search corrects by itself, and it
-  passes the gate: the drift is one the estimator's own uncertainty allows (`loop_gate`). What
-  moves the estimate is the drift the loop and the estimate agree on, weighted by both
-  covariances (`drift_estimate`), and only when that is still large enough to act on.
+  passes the gate: the drift is one the estimator's own uncertainty allows (`loop_gate`) and one
+  the match tells from its own error (`loop_significance`).
 * **relocalization** (a lost frame): a keyframe of the segment's frame: the frame's pose there.
 * **merge** (each keyframe of a segment started after a reset): a keyframe of another frame: the
   transform that puts this segment's frame into that one, once `loop_consistency` consecutive
@@ -44,7 +43,7 @@ from eurocslam.geometry import (
 from eurocslam.maps.store import MapKeyframe
 from eurocslam.pipeline.frames import FrameView
 from eurocslam.pipeline.records import PlaceEvent, PlaceKind
-from eurocslam.places.loop_gate import drift_estimate, loop_gate, psd
+from eurocslam.places.loop_gate import loop_gate, loop_significance, psd
 from eurocslam.places.recognizer import CandidatePoints, PlaceMatch, PlaceRecognizer, PlaceView
 from eurocslam.places.vocabulary import BowVector, Vocabulary, default_vocabulary
 from eurocslam.timebase import s_to_ns
@@ -346,32 +345,29 @@ class PlaceStage:
         if cov_cand is None:  # another segment's keyframe: everything this one has drifted
             cov_cand = np.zeros((6, 6))
         chi2 = 0.0
-        cov_after = psd(cov_cand) + cov_match
         if cov_query is not None:
             cov_q = cov_query()
             chi2 = float("inf") if cov_q is None else loop_gate(D, cov_q, cov_cand, cov_match)
-            if not chi2 <= c.loop_gate_chi2 or cov_q is None:
+            if not chi2 <= c.loop_gate_chi2:
                 refused = (chi2, True, dm, dd)
                 return PlaceAnswer(
                     (self._event(PlaceKind.LOOP, view, segment, m, p_q, 0.0, 0.0, *refused),)
                 )
-            D, cov_after = drift_estimate(D, cov_q, cov_cand, cov_match)
-        cm, cd = _size(D)
-        if cm < c.loop_min_correction_m and cd < c.loop_min_correction_deg:
-            # the drift the loop can tell, within its own error, is too small to act on
-            kept = (chi2, False, dm, dd)
-            return PlaceAnswer(
-                (self._event(PlaceKind.LOOP, view, segment, m, p_q, 0.0, 0.0, *kept),)
-            )
+            if not loop_significance(D, cov_match) > c.loop_gate_chi2:
+                # within the match's own error: the loop cannot tell this drift from none
+                kept = (chi2, False, dm, dd)
+                return PlaceAnswer(
+                    (self._event(PlaceKind.LOOP, view, segment, m, p_q, 0.0, 0.0, *kept),)
+                )
         fix = LoopFix(
             m,
             D,
             inv_T(self._in_frame(m.key)) @ T_frame_query,
-            cov_after,
+            psd(cov_cand) + cov_match,
             cand.segment,
             cand.index,
         )
-        ev = self._event(PlaceKind.LOOP, view, segment, m, p_q, cm, cd, chi2, False, dm, dd)
+        ev = self._event(PlaceKind.LOOP, view, segment, m, p_q, dm, dd, chi2, False, dm, dd)
         return PlaceAnswer((ev,), loop=fix)
 
     def _agree(self, Ds: list[F64]) -> bool:

@@ -1,11 +1,10 @@
 """The SLAM pipeline's state machine: frames in, one `FrameOutput` per frame out.
 
-Stages, each behind a typed record: extraction (`FeatureStream`: `StereoFrame` ->
-`FrameFeatures`, in worker processes) -> tracking (`StereoTracker.track` -> `FrontendResult`;
-corrections go back as one `MapCorrection`) -> estimator (`KeyframeEstimator`: `KeyframeUpdate`
-per keyframe, `SegmentSolution` per segment) -> observers (`on_frame(frame, FrameOutput)`).
-Place recognition (`PlaceStage`) sees every keyframe and every lost frame. The mode
-(stereo-inertial or visual-only) is the configuration's, resolved once.
+Stages, each behind a typed record: extraction (`FeatureStream` -> `FrameFeatures`, in worker
+processes) -> tracking (`StereoTracker` -> `FrontendResult`; corrections go back as one
+`MapCorrection`) -> estimator (`KeyframeEstimator` -> `KeyframeUpdate`, `SegmentSolution`) ->
+observers (`on_frame(frame, FrameOutput)`); place recognition (`PlaceStage`) sees every
+keyframe and every lost frame.
 
 States (`PipelineState`): **INIT** (no estimate yet: `startup.py`), **TRACKING** (the
 prediction seeds the tracker, keyframes go into the smoother and past place recognition, the

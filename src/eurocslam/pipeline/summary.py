@@ -16,17 +16,6 @@ from eurocslam.memory import peak_rss_mb, usable_cores
 from eurocslam.pipeline.records import FrameOutput, PlaceEvent, PlaceKind
 
 
-def cpu_seconds() -> float:
-    """CPU time of this process and of its finished children (the frontend's extraction
-    workers, once the stream has ended)."""
-    try:
-        import resource
-    except ImportError:  # pragma: no cover - not on Windows
-        return time.process_time()
-    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + ru.ru_utime + ru.ru_stime
-
-
 def _finite(x: float) -> float | None:
     """Rounded for JSON; NaN (not measured) as null."""
     return None if math.isnan(x) else round(x, 3)
@@ -63,7 +52,7 @@ class RunSummary:
     track_paths: dict[str, int] = field(default_factory=dict)
     timings_ms: dict[str, list[float]] = field(default_factory=dict)
     wall_s: float = 0.0
-    cpu_s: float = 0.0  # CPU time of the process (every thread) and its workers
+    cpu_s: float = 0.0  # CPU time of the process (every thread) and its workers' since set up
     peak_rss_mb: float = math.nan  # this process's peak resident memory
     worker_peak_rss_mb: list[float] = field(default_factory=list)  # extraction workers'
     # CPU time by thread: the one running the pipeline (tracking, backend, places, final batch),
@@ -84,14 +73,14 @@ class RunSummary:
 
     def start_clock(self) -> None:
         """The run starts: wall, process and this thread's CPU time from now."""
-        self._clock0 = (time.perf_counter(), cpu_seconds(), time.thread_time())
+        self._clock0 = (time.perf_counter(), time.process_time(), time.thread_time())
 
     def stop_clock(self, cost: ExtractionCost, span_s: float | None) -> None:
         """The run ends (its final batch included): wall and CPU time, the extraction workers'
         and the reader's, memory; `span_s`: the data's duration (None: no frame)."""
         wall0, cpu0, thread0 = self._clock0
         self.wall_s = time.perf_counter() - wall0
-        self.cpu_s = cpu_seconds() - cpu0
+        self.cpu_s = time.process_time() - cpu0  # the workers' is added with their cost
         self.tracking_cpu_s = time.thread_time() - thread0
         self.cores = usable_cores()
         self.peak_rss_mb = peak_rss_mb()
@@ -124,6 +113,7 @@ class RunSummary:
         """The extraction workers' memory and CPU time, and the frame reader's (none inline)."""
         self.worker_peak_rss_mb = list(cost.worker_peak_rss_mb)
         self.worker_cpu_s = list(cost.worker_cpu_s)
+        self.cpu_s += sum(c for c in cost.worker_cpu_s if not math.isnan(c))
         self.reader_cpu_s = cost.reader_cpu_s if cost.worker_cpu_s else math.nan
 
     @property

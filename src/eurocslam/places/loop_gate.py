@@ -8,15 +8,15 @@ keyframe's estimated poses perturbed on the left by xi_q and xi_c (world frame, 
 translation]), the loop measures D ~ exp(xi_q - xi_c) plus the match's own error, so log(D) is
 tested against the covariance of that difference (`loop_gate`). With an IMU, roll and pitch are
 observed and a loop moves only yaw and position (`yaw_and_translation`), as ORB-SLAM3 and
-VINS-Fusion correct 4 DoF. What moves the estimate is the drift the loop and the estimate agree
-on, each weighted by its covariance (`drift_estimate`).
+VINS-Fusion correct 4 DoF. A loop is acted on only when its drift is also one the match tells
+from its own error (`loop_significance`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from eurocslam.geometry import F64, make_T, rot_z, se3_exp, se3_log, yaw_of
+from eurocslam.geometry import F64, make_T, rot_z, se3_log, yaw_of
 
 
 def loop_gate(D: F64, cov_query: F64, cov_cand: F64, cov_match: F64) -> float:
@@ -38,19 +38,17 @@ def loop_gate(D: F64, cov_query: F64, cov_cand: F64, cov_match: F64) -> float:
         return float("inf")
 
 
-def drift_estimate(D: F64, cov_query: F64, cov_cand: F64, cov_match: F64) -> tuple[F64, F64]:
-    """The drift that the loop and the estimate agree on, and the query's covariance once
-    moved by it (both as `loop_gate`'s).
-
-    Before the loop the drift is 0 with the covariance P the estimate has accumulated since the
-    recognised keyframe (`cov_query - cov_cand`); the loop measures it as log D with the
-    match's covariance R. The most likely drift is K log D, K = P (P + R)^-1, and what remains
-    uncertain of it P - K P: where the match knows the drift better than the estimate does
-    (many close points, long drift) D entire; where the match is the less certain (a blurred
-    view, few or far points, a short loop) the estimate barely moves, as it should."""
-    P = psd(cov_query - cov_cand)
-    K = np.linalg.solve(P + cov_match, P).T  # P (P + R)^-1: P and P + R are symmetric
-    return se3_exp(K @ se3_log(D)), psd(cov_cand) + psd(P - K @ P)
+def loop_significance(D: F64, cov_match: F64) -> float:
+    """The chi-square (6 DoF) of a loop's drift `D` against the match's own error alone: how
+    far the measured drift is from none. The gate (`loop_gate`) asks whether the estimate could
+    have drifted that much; this asks whether the loop saw a drift at all. A blurred view or
+    few, far points measure a pose to degrees: a drift of a degree is then noise, and acting on
+    it moves a good estimate away."""
+    xi = se3_log(D)
+    try:
+        return float(xi @ np.linalg.solve(cov_match, xi))
+    except np.linalg.LinAlgError:  # a match without error: any drift is seen
+        return float("inf")
 
 
 def psd(M: F64) -> F64:

@@ -133,3 +133,29 @@ def real_imu_stream(
             bg[:, k] = np.interp(xq, x, sbg[:, k])
             ba[:, k] = np.interp(xq, x, sba[:, k])
     return ImuStream(t_ns, gyro, accel, bg, ba, real=True)
+
+
+def simulate_accelerometer(
+    spline: SplineTrajectory,
+    t0_ns: int,
+    t_ns: np.ndarray,
+    stream: ImuStream,
+    calib: ImuCalib,
+    rate_hz: float,
+    seed: int,
+    *,
+    noise: bool,
+) -> F64:
+    """An accelerometer sampled apart from the gyroscope (a RealSense's own clock and rate):
+    the exact specific force at `t_ns`, the accelerometer bias of `stream` (interpolated; one
+    bias process drives both streams) and white noise of density / sqrt(1 / rate_hz)."""
+    t_s = (t_ns - t0_ns).astype(np.float64) * 1e-9
+    _, accel = ideal_imu(spline, t_s)
+    x = (stream.t_ns - stream.t_ns[0]).astype(np.float64)
+    xq = (t_ns - stream.t_ns[0]).astype(np.float64)
+    ba = np.column_stack([np.interp(xq, x, stream.ba[:, k]) for k in range(3)])
+    out: F64 = accel + ba
+    if noise:
+        rng = np.random.default_rng([seed, 0xACC])
+        out = out + rng.normal(0.0, calib.accel_noise_density * np.sqrt(rate_hz), out.shape)
+    return out

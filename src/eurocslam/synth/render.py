@@ -1,11 +1,14 @@
-"""Vectorised stereo renderer: exact ray casting through the real pinhole + radial-tangential
-camera model into the axis-aligned world of `world.py`.
+"""Vectorised stereo renderer: exact ray casting through the rig's camera model (the real
+pinhole + radial-tangential of EuRoC, or a fisheye: every pixel's own ray, never a warped
+pinhole image) into the axis-aligned world of `world.py`.
 
 Per camera, once: every output pixel's ray (inverse distortion solved to 1e-9 px by Newton
-iterations, checked against `cv2.projectPoints`), the solid angle a pixel covers (for mip
-selection) and the vignetting map. Per frame: rotate the rays into the world, intersect the room
+iterations, checked against `cv2.projectPoints`; other models: `CameraCalib.model.unproject`,
+checked against its `project`), the solid angle a pixel covers (for mip selection) and the
+vignetting map. Per frame: rotate the rays into the world, intersect the room
 analytically (3 slabs), then each obstacle only over the pixels its projection can cover (a
-bounding box found through the distortion model), keep the nearest hit (exact occlusion), and look
+bounding box found through the distortion model; for a fisheye, which sees behind its image plane,
+the box's bounding cone projected by the model), keep the nearest hit (exact occlusion), and look
 the texture up with trilinear mip-mapping (`cv2.remap` on per-level atlases) so distant surfaces do
 not alias. Optional: z-depth per pixel (for tests), sensor noise, vignetting, exposure gain and
 motion blur (average of sub-frame renders across the exposure).
@@ -69,9 +72,14 @@ class CameraModel:
     vignette: np.ndarray  # (H, W) float32 in (0, 1]
     xn_bounds: tuple[float, float, float, float]  # x min, x max, y min, y max (normalised)
     monotone: bool  # distortion is one-to-one over the image: projected bboxes are valid
+    # pixels with a ray (None: all of them); a fisheye's pixels beyond its model's valid region
+    # are rendered black
+    valid: np.ndarray | None = None
 
     @classmethod
     def build(cls, cam: CameraCalib, vignette_strength: float = 0.35) -> CameraModel:
+        if not cam.model.perspective:
+            return cls._build_by_model(cam, vignette_strength)
         H, W = cam.height, cam.width
         u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
         x, y = undistort_pixels(cam, u, v)
@@ -109,9 +117,40 @@ class CameraModel:
             monotone=monotone,
         )
 
+    @classmethod
+    def _build_by_model(cls, cam: CameraCalib, vignette_strength: float) -> CameraModel:
+        """Rays of every pixel through `cam.model` (a fisheye: rays beyond 90 degrees too)."""
+        H, W = cam.height, cam.width
+        u, v = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+        uv = np.column_stack([u.ravel(), v.ravel()])
+        b = cam.model.unproject(uv)
+        valid = np.isfinite(b).all(axis=1)
+        back = cam.model.project(b[valid])
+        err = float(np.abs(back - uv[valid]).max(initial=0.0))
+        if not err < 1e-6:
+            raise ValueError(f"{cam.name}: the model's unprojection is off by {err:.2e} px")
+        b[~valid] = [0.0, 0.0, 1.0]
+        r = b.T.reshape(3, H, W)
+        du = np.linalg.norm(np.gradient(r, axis=2), axis=0)
+        dv = np.linalg.norm(np.gradient(r, axis=1), axis=0)
+        rho = np.hypot((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy)
+        rho /= rho.max()
+        mask = valid.reshape(H, W)
+        return cls(
+            calib=cam,
+            rays=r.astype(F32),
+            pix_ang=np.sqrt(du * dv).astype(F32),
+            vignette=(1.0 - vignette_strength * rho**2).astype(F32),
+            xn_bounds=(-np.inf, np.inf, -np.inf, np.inf),
+            monotone=False,
+            valid=None if mask.all() else mask,
+        )
+
     def pixel_bbox(self, R_cw: F64, o_w: F64, lo: F64, hi: F64) -> tuple[int, int, int, int] | None:
         """Pixel rows/cols (r0, r1, c0, c1) that can see the box [lo, hi]; None if none can."""
         cam = self.calib
+        if not cam.model.perspective:
+            return self._cone_bbox(R_cw, o_w, lo, hi)
         corners = np.array(
             [
                 [lo[0] if i & 1 else hi[0], lo[1] if i & 2 else hi[1], lo[2] if i & 4 else hi[2]]
@@ -155,13 +194,57 @@ class CameraModel:
             return None
         return r0, r1, c0, c1
 
+    def _cone_bbox(self, R_cw: F64, o_w: F64, lo: F64, hi: F64) -> tuple[int, int, int, int] | None:
+        """A fisheye's pixels that can see the box: the box's bounding sphere seen as a cone of
+        rays; the model maps that cap of the unit sphere one to one onto a region of the image
+        bounded by the projection of its rim, so the rim's pixel bounding box (64 rays, a 3 px
+        margin for the curve between them) holds every pixel of the box."""
+        cam = self.calib
+        H, W = cam.height, cam.width
+        centre = 0.5 * (np.asarray(lo) + np.asarray(hi))
+        radius = 0.5 * float(np.linalg.norm(np.asarray(hi) - np.asarray(lo)))
+        d = R_cw @ (centre - o_w)
+        dist = float(np.linalg.norm(d))
+        if dist <= radius + NEAR:
+            return 0, H, 0, W
+        axis = d / dist
+        half = float(np.arcsin(radius / dist))
+        off_axis = float(np.arccos(np.clip(axis[2], -1.0, 1.0)))
+        if off_axis + half >= cam.model.max_angle:
+            return 0, H, 0, W  # the cone reaches where the model ends: no bound from its rim
+        e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(axis, e1)
+        phi = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
+        rim = np.cos(half) * axis + np.sin(half) * (
+            np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2
+        )
+        uv = cam.model.project(rim)
+        if not np.isfinite(uv).all():
+            return 0, H, 0, W
+        c0, c1 = int(np.floor(uv[:, 0].min())) - 3, int(np.ceil(uv[:, 0].max())) + 4
+        r0, r1 = int(np.floor(uv[:, 1].min())) - 3, int(np.ceil(uv[:, 1].max())) + 4
+        c0, c1, r0, r1 = max(c0, 0), min(c1, W), max(r0, 0), min(r1, H)
+        if c0 >= c1 or r0 >= r1:
+            return None
+        return r0, r1, c0, c1
+
 
 _MODEL_CACHE: dict[tuple[object, ...], CameraModel] = {}
 
 
 def camera_model(cam: CameraCalib) -> CameraModel:
     """`CameraModel.build`, cached per intrinsics (the inverse distortion map takes ~0.4 s)."""
-    key = (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, tuple(cam.distortion))
+    key = (
+        cam.width,
+        cam.height,
+        cam.fx,
+        cam.fy,
+        cam.cx,
+        cam.cy,
+        tuple(cam.distortion),
+        cam.distortion_model,
+    )
     model = _MODEL_CACHE.get(key)
     if model is None:
         if len(_MODEL_CACHE) > 8:
@@ -307,6 +390,8 @@ def cast_and_shade(
     hits.foot *= model.pix_ang
     hits.foot *= F32(world.texels_per_m)
     out = _sample_trilinear(world, hits.X, hits.Y, hits.foot)
+    if model.valid is not None:  # a fisheye's pixels without a ray
+        out[~model.valid] = 0.0
     depth = (hits.t * model.rays[2]) if want_depth else None
     return RenderOutput(out, depth, hits.fid)
 

@@ -11,15 +11,19 @@ from typing import Any
 import cv2
 import numpy as np
 
+from eurocslam.dataset.bag.imu_union import unite_imu
 from eurocslam.dataset.calib import StereoRig, calib_folder, default_rig, load_rig
+from eurocslam.dataset.calib_sources import tumvi_kalibr_texts, tumvi_rig
+from eurocslam.dataset.split_imu import SplitImu, write_split_imu
 from eurocslam.errors import CalibrationError, DatasetError
-from eurocslam.geometry import F64, make_T, rot_to_quat_wxyz
+from eurocslam.geometry import F64, inv_T, make_T, rot_to_quat_wxyz
 from eurocslam.memory import usable_cores
 from eurocslam.synth import writer
 from eurocslam.synth.imu import (
     ImuStream,
     read_real_imu,
     real_imu_stream,
+    simulate_accelerometer,
     simulate_imu,
 )
 from eurocslam.synth.render import CameraModel, camera_model, cast_and_shade
@@ -31,6 +35,7 @@ from eurocslam.synth.trajectory import (
     builtin_motion,
     motion_from_groundtruth,
     read_groundtruth_file,
+    reexpress,
 )
 from eurocslam.synth.world import World, build_world
 from eurocslam.timebase import NS_PER_S, ns_to_s, s_to_ns
@@ -43,6 +48,20 @@ SHOT_NOISE_GAIN = 0.05  # shot-noise variance per DN of signal
 EXPOSURE_SPREAD = 0.15  # log-gain amplitude of the slow exposure changes
 BLUR_EXPOSURE_S = 0.008  # exposure window for motion blur
 BLUR_SUBFRAMES = 4  # renders besides the one at the frame time
+
+
+def scene_rig(spec: SynthSpec) -> StereoRig:
+    """The rig a spec renders: EuRoC's (built in, or `calib`'s), TUM-VI's fisheye or the
+    RealSense-like pair."""
+    from eurocslam.synth.rigs import realsense_rig
+
+    if spec.rig in ("tumvi", "realsense"):
+        if spec.calib is not None:
+            raise DatasetError(f"--calib with --rig {spec.rig}: the rig is built in")
+        return tumvi_rig() if spec.rig == "tumvi" else realsense_rig()
+    if spec.rig != "euroc":
+        raise DatasetError(f"rig '{spec.rig}' unknown (known: euroc, tumvi, realsense)")
+    return load_rig(Path(spec.calib)) if spec.calib is not None else default_rig()
 
 
 @dataclass
@@ -59,23 +78,23 @@ class Scene:
     imu: ImuStream
     notes: list[str] = field(default_factory=list)
     shared: SharedWorld | None = None  # what a `world_from` world was built from
+    split: SplitImu | None = None  # accelerometer and gyroscope apart (`spec.accel_rate_hz`)
 
     # ---- construction ---------------------------------------------------------------------
     @classmethod
     def build(cls, spec: SynthSpec) -> Scene:
-        rig = load_rig(Path(spec.calib)) if spec.calib is not None else default_rig()
-        if rig.imu is None:
-            raise CalibrationError(
-                f"{calib_folder(Path(str(spec.calib)))}/imu0/sensor.yaml: file not found "
-                "(a synthetic sequence has an IMU: the calibration needs one)"
-            )
+        rig = _rig(spec)
+        assert rig.imu is not None
         imu_calib = rig.imu
         cam_rate, imu_rate = rig.cam0.rate_hz, imu_calib.rate_hz
         ratio = imu_rate / cam_rate
-        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+        # the cameras share the IMU's stamps when its rate is a whole multiple of theirs (EuRoC),
+        # else they run on their own clock (a RealSense: 30 Hz images, a 200/400 Hz IMU)
+        shared_clock = abs(ratio - round(ratio)) <= 1e-6 and round(ratio) >= 1
+        if not shared_clock and spec.imu is not None:
             raise DatasetError(
-                f"calibration: imu0 rate {imu_rate:g} Hz is not a whole multiple of the camera "
-                f"rate {cam_rate:g} Hz (the IMU must share the camera timestamps)"
+                f"--imu: real IMU rows need a camera rate ({cam_rate:g} Hz) that the IMU rate "
+                f"({imu_rate:g} Hz) is a whole multiple of"
             )
         ratio_i = round(ratio)
         if spec.world_from is not None:
@@ -97,7 +116,14 @@ class Scene:
             )
             floor_z: float | None = 0.0
         else:
-            gt = read_groundtruth_file(Path(spec.trajectory))
+            gt_euroc = gt = read_groundtruth_file(Path(spec.trajectory))
+            if spec.rig != "euroc":
+                if spec.imu is not None:
+                    raise DatasetError(
+                        f"--imu with --rig {spec.rig}: real IMU rows belong to EuRoC's rig"
+                    )
+                # the rig's cam0 where EuRoC's cam0 flies (the world stays EuRoC's)
+                gt = reexpress(gt, default_rig().cam0.T_body_cam @ inv_T(rig.cam0.T_body_cam))
             end = spec.end_s
             if spec.duration_s is not None:
                 start = spec.start_s or 0.0
@@ -107,8 +133,11 @@ class Scene:
                 # the motion the real IMU measured (high frequency) on the ground truth (low)
                 span = 2 * 10**9  # read_real_imu needs rows in range; the fit takes what it needs
                 real_rows = read_real_imu(Path(spec.imu), gt.t_ns[0] - span, gt.t_ns[-1] + span)
-            motion = motion_from_groundtruth(
-                gt, start_s=spec.start_s, end_s=end, knot_dt=spec.knot_dt_s, imu=real_rows
+            crop = {"start_s": spec.start_s, "end_s": end, "knot_dt": spec.knot_dt_s}
+            motion = motion_from_groundtruth(gt, **crop, imu=real_rows)  # type: ignore[arg-type]
+            # the world is built around EuRoC's body path, so rigs share it
+            world_motion = (
+                motion if gt is gt_euroc else motion_from_groundtruth(gt_euroc, **crop)  # type: ignore[arg-type]
             )
             floor_z = None
         t_lo = motion.t0_ns + s_to_ns(motion.t_start_s)
@@ -129,7 +158,28 @@ class Scene:
                 noise=spec.imu_noise,
                 bias=spec.imu_bias,
             )
-        cam_t = imu.t_ns[::ratio_i].copy()
+        split = None
+        if spec.accel_rate_hz is not None:
+            t_acc = t_lo + np.round(
+                np.arange(int((t_hi - t_lo) * spec.accel_rate_hz // 1e9) + 1)
+                * 1e9
+                / spec.accel_rate_hz
+            ).astype(np.int64)
+            acc = simulate_accelerometer(
+                motion.spline, motion.t0_ns, t_acc, imu, imu_calib, spec.accel_rate_hz,
+                spec.seed, noise=spec.imu_noise,
+            )  # fmt: skip
+            split = SplitImu(t_acc, acc, imu.t_ns.copy(), imu.gyro.copy())
+            united = unite_imu(t_acc, acc, imu.t_ns, imu.gyro)
+            k = slice(united.dropped_before, imu.t_ns.size - united.dropped_after)
+            imu = ImuStream(united.imu.t_ns, united.imu.gyro, united.imu.accel, imu.bg[k],
+                            imu.ba[k])  # fmt: skip
+        if shared_clock:
+            cam_t = imu.t_ns[::ratio_i].copy()
+        else:
+            cam_period = 1e9 / cam_rate
+            n_cam = int((int(imu.t_ns[-1]) - t_lo) // cam_period) + 1
+            cam_t = t_lo + np.round(np.arange(n_cam) * cam_period).astype(np.int64)
         if cam_t.size < 2:
             raise DatasetError("the sequence is too short: fewer than 2 camera frames")
         models = (camera_model(rig.cam0), camera_model(rig.cam1))
@@ -141,16 +191,19 @@ class Scene:
             )
             t_rel = np.tile(ns_to_s(cam_t - gt.t_ns[0]), 2)
             check_flight_inside(world, shared, centres, t_rel, str(spec.trajectory))
-            return cls(spec, rig, motion, world, models, cam_t, imu, shared=shared)
+            return cls(spec, rig, motion, world, models, cam_t, imu, shared=shared, split=split)
         path = motion.spline.positions(ns_to_s(cam_t - motion.t0_ns))
         if spec.trajectory is not None:
             # the world encloses the whole recorded flight, so every crop of a sequence flies
             # through the same room
-            step = max(1, len(gt.p) // 4000)
-            p_all = gt.p[::step] if motion.world_R is None else gt.p[::step] @ motion.world_R.T
+            path = world_motion.spline.positions((cam_t - world_motion.t0_ns) * 1e-9)
+            step = max(1, len(gt_euroc.p) // 4000)
+            p_all = gt_euroc.p[::step]
+            if motion.world_R is not None:
+                p_all = p_all @ motion.world_R.T
             path = np.vstack([path, p_all])
         world = build_world(path, spec.seed, floor_z=floor_z, marker=spec.marker)
-        return cls(spec, rig, motion, world, models, cam_t, imu)
+        return cls(spec, rig, motion, world, models, cam_t, imu, split=split)
 
     # ---- rendering ------------------------------------------------------------------------
     def t_s(self, t_ns: int | np.ndarray) -> F64:
@@ -206,6 +259,29 @@ class Scene:
             rad = rad + sigma * rng.standard_normal(rad.shape, dtype=np.float32)
         img = np.clip(rad + np.float32(0.5), 0, 255).astype(np.uint8)
         return img, out
+
+
+def _rig(spec: SynthSpec) -> StereoRig:
+    """`scene_rig`, at `imu_rate_hz` when given; it must have an IMU."""
+    from dataclasses import replace
+
+    from eurocslam.dataset.calib_yaml import imu_yaml_text
+
+    rig = scene_rig(spec)
+    if rig.imu is None:
+        raise CalibrationError(
+            f"{calib_folder(Path(str(spec.calib)))}/imu0/sensor.yaml: file not found "
+            "(a synthetic sequence has an IMU: the calibration needs one)"
+        )
+    for name, rate in (("imu", spec.imu_rate_hz), ("accel", spec.accel_rate_hz)):
+        if rate is not None and not 1.0 <= rate <= 10000.0:
+            raise DatasetError(f"--{name}-rate {rate:g}: expected 1 to 10000 Hz")
+    if spec.imu_rate_hz is not None:
+        imu = replace(rig.imu, rate_hz=float(spec.imu_rate_hz))
+        texts = dict(rig.yaml_texts)
+        texts["imu0"] = imu_yaml_text(imu, f"{rig.imu.rate_hz:g} Hz IMU at {imu.rate_hz:g} Hz")
+        rig = replace(rig, imu=imu, yaml_texts=tuple(sorted(texts.items())))
+    return rig
 
 
 # ---- parallel frame writing -----------------------------------------------------------------
@@ -307,7 +383,9 @@ def synthesize(
     (default: all available cores; the output does not depend on it).
     """
     out = Path(out_dir)
-    stage = writer.prepare_folder(out, overwrite)
+    stage = writer.prepare_folder(
+        out, overwrite, spec.rig if spec.rig in writer.FOLDERS else "euroc"
+    )
     try:
         scene = Scene.build(spec)
         nw = usable_cores() if workers is None else max(1, int(workers))
@@ -318,6 +396,20 @@ def synthesize(
         st = scene.motion.spline.evaluate(scene.t_s(imu.t_ns))
         keep = ~spec.in_blackout(scene.t_s(imu.t_ns))
         summary = _summary(scene, st, render_wall, cpu, nw)
+        if spec.rig == "tumvi":
+            writer.write_tumvi_tables(
+                stage,
+                tumvi_kalibr_texts(),
+                scene.cam_t_ns,
+                imu.t_ns,
+                imu.gyro,
+                imu.accel,
+                keep,
+                st.p,
+                rot_to_quat_wxyz(st.R),
+                summary,
+            )
+            return writer.finish(stage, out)
         writer.write_tables(
             stage,
             scene.rig,
@@ -333,6 +425,14 @@ def synthesize(
             imu.ba,
             summary,
         )
+        if scene.split is not None:
+            sp = scene.split
+            ka = ~spec.in_blackout(scene.t_s(sp.accel_t_ns))
+            kg = ~spec.in_blackout(scene.t_s(sp.gyro_t_ns))
+            write_split_imu(
+                stage / "mav0",
+                SplitImu(sp.accel_t_ns[ka], sp.accel[ka], sp.gyro_t_ns[kg], sp.gyro[kg]),
+            )
     except BaseException:
         import shutil
 
@@ -371,6 +471,7 @@ def _summary(scene: Scene, st: Any, render_wall: float, cpu: float, workers: int
         "frames": n,
         "imu_samples": int(scene.imu.t_ns.size),
         "imu": "real rows" if scene.imu.real else "simulated",
+        **_split_summary(scene),
         "t_first_ns": int(scene.cam_t_ns[0]),
         "t_last_ns": int(scene.cam_t_ns[-1]),
         "duration_s": float(ns_to_s(scene.cam_t_ns[-1] - scene.cam_t_ns[0])),
@@ -381,4 +482,19 @@ def _summary(scene: Scene, st: Any, render_wall: float, cpu: float, workers: int
         "render_cpu_ms_per_pair": 1000.0 * cpu / max(n, 1),
         "workers": workers,
         "builtin_t0_ns": BUILTIN_T0_NS if scene.spec.trajectory is None else None,
+    }
+
+
+def _split_summary(scene: Scene) -> dict[str, Any]:
+    """synth.json keys of an accelerometer sampled apart (none otherwise: old summaries stay)."""
+    sp = scene.split
+    if sp is None:
+        return {}
+    return {
+        "imu_split": {
+            "accel_hz": scene.spec.accel_rate_hz,
+            "gyro_hz": scene.rig.imu.rate_hz if scene.rig.imu is not None else None,
+            "accel_samples": int(sp.accel_t_ns.size),
+            "gyro_samples": int(sp.gyro_t_ns.size),
+        }
     }

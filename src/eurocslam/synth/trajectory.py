@@ -12,7 +12,7 @@ frame is the EuRoC IMU frame: body x up (thrust), body z forward (where the came
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -159,6 +159,18 @@ def read_groundtruth_file(path: Path) -> GroundTruthInput:
         if tab.t_ns.shape == traj.t_ns.shape and np.array_equal(tab.t_ns, traj.t_ns):
             bg, ba = tab.values[:, 10:13].copy(), tab.values[:, 13:16].copy()
     return GroundTruthInput(path, traj.t_ns, traj.p, traj.q_wxyz, bg, ba)
+
+
+def reexpress(gt: GroundTruthInput, T_oldbody_newbody: F64) -> GroundTruthInput:
+    """The same motion as the pose of another body frame rigidly attached to the first
+    (`T_world_newbody = T_world_oldbody T_oldbody_newbody`); bias columns turned into it."""
+    R = quat_wxyz_to_rot(gt.q_wxyz)
+    r_on, t_on = T_oldbody_newbody[:3, :3], T_oldbody_newbody[:3, 3]
+    p = gt.p + R @ t_on
+    q = rot_to_quat_wxyz(R @ r_on)
+    bg = gt.bg @ r_on if gt.bg is not None else None  # (r_on^T b per row)
+    ba = gt.ba @ r_on if gt.ba is not None else None
+    return replace(gt, p=p, q_wxyz=q, bg=bg, ba=ba)
 
 
 def motion_from_groundtruth(

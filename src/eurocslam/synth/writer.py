@@ -1,6 +1,7 @@
-"""Write a synthetic sequence as an EuRoC ASL folder (what `open_sequence` and `doctor` read).
+"""Write a synthetic sequence as an EuRoC ASL folder (what `open_sequence` and `doctor` read),
+or as a TUM-VI folder as distributed (`rig` "tumvi").
 
-Layout::
+EuRoC layout::
 
     OUT/mav0/cam0/{data.csv, data/<t_ns>.png, sensor.yaml}
     OUT/mav0/cam1/{...}
@@ -8,6 +9,14 @@ Layout::
     OUT/mav0/state_groundtruth_estimate0/{data.csv, sensor.yaml}   17 columns
     OUT/mav0/body.yaml
     OUT/synth.json                                                 spec + summary
+
+TUM-VI layout (no sensor.yaml: the calibration is in dso/)::
+
+    OUT/dso/{camchain.yaml, imu_config.yaml}
+    OUT/mav0/cam0/{data.csv, data/<t_ns>.png}, OUT/mav0/cam1/{...}
+    OUT/mav0/imu0/data.csv
+    OUT/mav0/mocap0/data.csv                                       8 columns: t, p, q wxyz
+    OUT/synth.json
 
 The folder is assembled under `OUT.partial` and renamed at the end, so an interrupted run never
 leaves something that looks like a finished sequence.
@@ -53,6 +62,14 @@ T_BS:
          0.0, 0.0, 0.0, 1.0]
 """
 BODY_YAML = "%YAML:1.0\ncomment: eurocslam synthetic sequence (EuRoC VI-sensor calibration)\n"
+MOCAP_HEADER = (
+    "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []"
+)
+# the folders of each layout, under the staging root
+FOLDERS = {
+    "euroc": ("mav0/cam0/data", "mav0/cam1/data", "mav0/imu0", "mav0/state_groundtruth_estimate0"),
+    "tumvi": ("mav0/cam0/data", "mav0/cam1/data", "mav0/imu0", "mav0/mocap0", "dso"),
+}
 
 
 def _rows(t_ns: np.ndarray, values: F64, fmt: str) -> str:
@@ -64,8 +81,9 @@ def _rows(t_ns: np.ndarray, values: F64, fmt: str) -> str:
     return "\n".join(body) + "\n"
 
 
-def prepare_folder(out: Path, overwrite: bool) -> Path:
-    """Create the staging folder `OUT.partial/mav0/...`; returns the staging root."""
+def prepare_folder(out: Path, overwrite: bool, layout: str = "euroc") -> Path:
+    """Create the staging folder `OUT.partial/mav0/...` (`layout`: "euroc" or "tumvi");
+    returns the staging root."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: is a file; the output of synth is a folder")
@@ -80,7 +98,7 @@ def prepare_folder(out: Path, overwrite: bool) -> Path:
                 "synth.json); refusing to replace it"
             )
     stage = out.with_name(out.name + ".partial")
-    if stage.is_dir() and {p.name for p in stage.iterdir()} <= {"mav0", "synth.json"}:
+    if stage.is_dir() and {p.name for p in stage.iterdir()} <= {"mav0", "synth.json", "dso"}:
         shutil.rmtree(stage)  # left by an interrupted synth
     elif stage.exists():
         raise OutputError(
@@ -88,8 +106,8 @@ def prepare_folder(out: Path, overwrite: bool) -> Path:
             "output there: move it away"
         )
     try:
-        for sub in ("cam0/data", "cam1/data", "imu0", "state_groundtruth_estimate0"):
-            (stage / "mav0" / sub).mkdir(parents=True, exist_ok=True)
+        for sub in FOLDERS[layout]:
+            (stage / sub).mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise OutputError(f"{stage}: cannot create: {e}") from None
     return stage
@@ -134,6 +152,40 @@ def write_tables(
         )
         (mav0 / "state_groundtruth_estimate0" / "sensor.yaml").write_text(GT_SENSOR_YAML)
         (mav0 / "body.yaml").write_text(BODY_YAML)
+        (stage / "synth.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    except OSError as e:
+        raise OutputError(f"{stage}: cannot write: {e}") from None
+
+
+def write_tumvi_tables(
+    stage: Path,
+    kalibr_texts: dict[str, str],
+    cam_t_ns: np.ndarray,
+    imu_t_ns: np.ndarray,
+    gyro: F64,
+    accel: F64,
+    imu_rows: np.ndarray,
+    gt_p: F64,
+    gt_q_wxyz: F64,
+    summary: dict[str, Any],
+) -> None:
+    """The tables of a TUM-VI folder: `kalibr_texts` holds dso/camchain.yaml and
+    dso/imu_config.yaml; the ground truth is the IMU's pose (mocap0, every IMU sample)."""
+    mav0 = stage / "mav0"
+    cam_rows = "".join(f"{int(t)},{int(t)}.png\n" for t in cam_t_ns)
+    try:
+        for name, text in kalibr_texts.items():
+            (stage / "dso" / name).write_text(text)
+        for cam in ("cam0", "cam1"):
+            (mav0 / cam / "data.csv").write_text(CAM_HEADER + "\n" + cam_rows)
+        (mav0 / "imu0" / "data.csv").write_text(
+            IMU_HEADER
+            + "\n"
+            + _rows(imu_t_ns[imu_rows], np.hstack([gyro, accel])[imu_rows], "%.17g")
+        )
+        (mav0 / "mocap0" / "data.csv").write_text(
+            MOCAP_HEADER + "\n" + _rows(imu_t_ns, np.hstack([gt_p, gt_q_wxyz]), "%.12g")
+        )
         (stage / "synth.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     except OSError as e:
         raise OutputError(f"{stage}: cannot write: {e}") from None

@@ -14,7 +14,13 @@ from typing import Any
 
 import numpy as np
 
-from eurocslam.dataset.bag.calibration import BUILTIN, gt_sensor_extrinsic, resolve_calibration
+from eurocslam.dataset.bag.arrays import ArrayBuilder
+from eurocslam.dataset.bag.calibration import (
+    BUILTIN,
+    apply_imu_noise,
+    resolve_calibration,
+    rig_from_bag,
+)
 from eurocslam.dataset.bag.files import bag_kind, is_bag_path, open_reader
 from eurocslam.dataset.bag.messages import (
     check_encoding,
@@ -26,35 +32,15 @@ from eurocslam.dataset.bag.messages import (
     stamp_of,
 )
 from eurocslam.dataset.bag.pairing import BagEntry, camera_map, join_cameras, snap_cam1
-from eurocslam.dataset.bag.topics import (
-    REQUIRED_ROLES,
-    ROLE_TYPES,
-    ROLES,
-    ImageInfo,
-    TopicMap,
-    TopicStats,
-)
+from eurocslam.dataset.bag.roles import choose_roles
+from eurocslam.dataset.bag.static import BagStatic, left_is_first, read_static, swap
+from eurocslam.dataset.bag.stats import ImageInfo, TopicStats, rate_hz
+from eurocslam.dataset.bag.topics import INFO_ROLES, ROLE_TYPES, TopicMap
 from eurocslam.dataset.calib import StereoRig, calib_folder
-from eurocslam.dataset.types import (
-    I64,
-    U8,
-    GroundTruth,
-    ImuData,
-    PositionData,
-    SkipReport,
-    StereoFrame,
-    empty_imu,
-)
+from eurocslam.dataset.imu_noise import NoiseFigures
+from eurocslam.dataset.types import I64, U8, SkipReport, StereoFrame, empty_imu
 from eurocslam.errors import CalibrationError, DatasetError
-from eurocslam.geometry import (
-    F64,
-    inv_T,
-    make_T,
-    normalize_quat,
-    quat_wxyz_to_rot,
-    rot_to_quat_wxyz,
-    xyzw_to_wxyz,
-)
+from eurocslam.geometry import F64
 
 
 class BagSequence:
@@ -67,6 +53,7 @@ class BagSequence:
         *,
         calib: Path | str | None = None,
         topics: TopicMap | Mapping[str, str] | None = None,
+        imu_noise: NoiseFigures | None = None,
         show_progress: bool | None = None,
     ) -> None:
         self.path = Path(path)
@@ -100,44 +87,77 @@ class BagSequence:
         self.ros2 = False
         self._conn_role: dict[int, str] = {}
         self._cam1_alias: dict[int, int] = {}  # cam1 stamp -> the cam0 stamp it pairs with
-        self.rig, self.calib_source = resolve_calibration(
+        self.info_topics: dict[str, str] = {}  # cam0_info / cam1_info -> topic
+        # what the bag says about its calibration: tf tree, CameraInfo, frame ids
+        self.static = BagStatic()
+        explicit, self.calib_source = resolve_calibration(
             self.path, rig, self.calib_dir, self.notes
         )
         self.T_body_gtsensor: F64 = np.eye(4)
         self._scan(show_progress)
+        if explicit is None:
+            explicit, self.calib_source = self._rig_from_bag()
+        self.rig: StereoRig = apply_imu_noise(
+            explicit, imu_noise, self.calib_source.startswith("CameraInfo"), self.calib_source,
+            self.notes,
+        )  # fmt: skip
         self.stamp_source = self._choose_camera_stamps()
         self.frame_index = self._join_cameras()
         self._check_image_sizes()
 
     # ---- the index pass -------------------------------------------------------------------
     def _resolve_topics(self, reader: Any) -> dict[str, list[Any]]:
+        """Each role's connections (`roles.choose_roles`), their message types checked."""
         available = {name: info for name, info in reader.topics.items()}
         self.bag_topics = {n: (str(i.msgtype), int(i.msgcount)) for n, i in available.items()}
-        listing = ", ".join(f"{n} ({t}, {c})" for n, (t, c) in sorted(self.bag_topics.items()))
+        choice = choose_roles(self.bag_topics, self.topic_map, str(self.path))
+        self.notes.extend(choice.notes)
+        self._unordered_pair = choice.unordered
         out: dict[str, list[Any]] = {}
-        for role in ROLES:
-            cands = self.topic_map.candidates(role)
-            found = next((t for t in cands if t in available), None)
-            if found is None:
-                if role in REQUIRED_ROLES or role in self.topic_map.explicit:
-                    raise DatasetError(
-                        f"{self.path}: no topic for {role} (looked for {', '.join(cands)}; map "
-                        f"one with --topic {role}=TOPIC). The bag has: {listing or 'no topics'}"
-                    )
-                continue
+        for role, found in choice.topics.items():
             conns = list(available[found].connections)
-            types = {c.msgtype for c in conns}
-            bad = sorted(t for t in types if t not in ROLE_TYPES[role])
+            bad = sorted({c.msgtype for c in conns} - set(ROLE_TYPES[role]))
             if bad:
                 raise DatasetError(
                     f"{self.path}: topic {found} ({role}) has message type {', '.join(bad)}; "
                     f"expected {' or '.join(ROLE_TYPES[role])}"
                 )
             out[role] = conns
-            self.stats[role] = TopicStats(role, found, conns[0].msgtype)
-        if self.stats["cam0"].topic == self.stats["cam1"].topic:
-            raise DatasetError(f"{self.path}: cam0 and cam1 both map to {self.stats['cam0'].topic}")
+            if role in INFO_ROLES.values():
+                self.info_topics[role] = found
+            else:
+                self.stats[role] = TopicStats(role, found, conns[0].msgtype)
         return out
+
+    def _read_static(self, reader: Any, role_conns: dict[str, list[Any]]) -> None:
+        """The tf tree, CameraInfo and frame ids (`static`); left and right put in order when
+        the pair was found by type alone."""
+        topics = {**{r: st.topic for r, st in self.stats.items()}, **self.info_topics}
+        self.static = read_static(
+            reader, role_conns, topics, lambda raw, c, t: self._deserialize(reader, raw, c, t)
+        )
+        if not self._unordered_pair:
+            return
+        a, b = self.stats["cam0"].topic, self.stats["cam1"].topic
+        first_is_left, how = left_is_first(self.static, a, b, str(self.path))
+        if not first_is_left:
+            swap(self.stats, "cam0", "cam1")
+            swap(role_conns, "cam0", "cam1")
+            swap(self.info_topics, "cam0_info", "cam1_info")
+            self.static.swap_cameras()
+            for role in ("cam0", "cam1"):
+                self.stats[role].role = role
+            a, b = b, a
+        self.notes.append(f"stereo pair: left {a}, right {b} (decided by {how})")
+
+    def _rig_from_bag(self) -> tuple[StereoRig, str]:
+        cams = {
+            r: (self.stats[r].topic, self.image_info.get(r), rate_hz(self.stats[r].header_array()))
+            for r in ("cam0", "cam1")
+        }
+        role = "gyro" if "gyro" in self.stats else "imu"
+        imu = (self.stats[role].topic, rate_hz(self.imu.t_ns)) if len(self.imu) else None
+        return rig_from_bag(self.path, self.static, cams, imu, self.notes)
 
     def _scan(self, show_progress: bool | None) -> None:
         from eurocslam.progress import bar
@@ -147,10 +167,17 @@ class BagSequence:
         gt_t: list[int] = []
         gt_v: list[tuple[float, ...]] = []
         le_t: list[int] = []
-        le_v: list[tuple[float, float, float]] = []
+        le_v: list[tuple[float, ...]] = []
+        ac_t: list[int] = []
+        ac_v: list[tuple[float, ...]] = []
+        gy_t: list[int] = []
+        gy_v: list[tuple[float, ...]] = []
         with open_reader(self.path) as reader:
             self.ros2 = bool(reader.is2)
             role_conns = self._resolve_topics(reader)
+            self._read_static(reader, role_conns)
+            for info_role in INFO_ROLES.values():  # CameraInfo is read once, not indexed
+                role_conns.pop(info_role, None)
             self._conn_role = {id(c): r for r, cs in role_conns.items() for c in cs}
             conns = [c for cs in role_conns.values() for c in cs]
             fast: dict[int, bool] = {}  # connection -> raw fast path verified on its first message
@@ -175,19 +202,36 @@ class BagSequence:
                     if role == "imu":
                         imu_t.append(stamp)
                         imu_v.append(vals)
+                    elif role == "accel":
+                        ac_t.append(stamp)
+                        ac_v.append(vals)
+                    elif role == "gyro":
+                        gy_t.append(stamp)
+                        gy_v.append(vals)
                     elif role == "groundtruth":
                         gt_t.append(stamp)
                         gt_v.append(vals)
                     else:
                         le_t.append(stamp)
-                        le_v.append(vals)  # type: ignore[arg-type]
+                        le_v.append(vals)
             finally:
                 pb.close()
         for st in self.stats.values():
             st.freeze()
-        self.imu = self._build_imu(imu_t, imu_v)
-        self.groundtruth = self._build_groundtruth(gt_t, gt_v)
-        self.leica = self._build_leica(le_t, le_v)
+        arrays = ArrayBuilder(self.path, self.stats, self.notes, self.skips)
+        if "accel" in self.stats:
+            frames, tf = self.static.frame_ids, self.static.tf
+            self.imu = arrays.united_imu((ac_t, ac_v), (gy_t, gy_v), frames, tf)
+        elif "imu" in self.stats:
+            self.imu = arrays.imu(imu_t, imu_v)
+        else:  # no IMU topic: a stereo-only input
+            cands = ", ".join(self.topic_map.candidates("imu"))
+            self.notes.append(
+                f"no IMU topic (looked for {cands}): a stereo-only input, runs visual-only"
+            )
+            self.imu = empty_imu()
+        self.groundtruth, self.T_body_gtsensor = arrays.groundtruth(gt_t, gt_v, self.calib_dir)
+        self.leica = arrays.leica(le_t, le_v)
 
     def _values(
         self, reader: Any, conn: Any, raw: bytes | memoryview, log_ns: int, fast: dict[int, bool]
@@ -247,88 +291,6 @@ class BagSequence:
             info = ImageInfo(conn.topic, conn.msgtype, str(msg.encoding), int(msg.width),
                              int(msg.height))  # fmt: skip
         self.image_info[role] = info
-
-    # ---- arrays ---------------------------------------------------------------------------
-    def _stamps(self, role: str, header: list[int]) -> I64:
-        """Header stamps, or the log times when any header stamp is unset (zero; with a note)."""
-        st = self.stats[role]
-        h = np.asarray(header, dtype=np.int64)
-        unset = (h == 0) & (st.log_array() != 0)
-        if h.size and np.any(unset):
-            self.notes.append(
-                f"{st.topic}: {int(np.count_nonzero(unset))} of {h.size} messages have a zero "
-                "header stamp; using the bag's log time for this topic"
-            )
-            return st.log_array()
-        return h
-
-    def _sorted_unique(self, t: I64, role: str) -> I64:
-        topic = self.stats[role].topic
-        if t.size and np.any(np.diff(t) < 0):
-            self.skips.add("out-of-order timestamps (sorted)", topic)
-        order = np.argsort(t, kind="stable")
-        ts = t[order]
-        keep = np.ones(ts.size, dtype=bool)
-        keep[1:] = ts[1:] != ts[:-1]
-        for i in np.flatnonzero(~keep)[:1000]:
-            self.skips.add(f"duplicate {role} timestamp (dropped)", f"{topic}: {ts[i]}")
-        return order[keep]
-
-    def _build_imu(self, t: list[int], v: list[tuple[float, ...]]) -> ImuData:
-        if "imu" not in self.stats:  # no IMU topic: a stereo-only input
-            cands = ", ".join(self.topic_map.candidates("imu"))
-            self.notes.append(
-                f"no IMU topic (looked for {cands}): a stereo-only input, runs visual-only"
-            )
-            return empty_imu()
-        topic = self.stats["imu"].topic
-        if not t:
-            raise DatasetError(f"{self.path}: {topic}: no IMU messages")
-        ts = self._stamps("imu", t)
-        vals = np.asarray(v, dtype=np.float64)
-        if not np.all(np.isfinite(vals)):
-            bad = int(np.flatnonzero(~np.all(np.isfinite(vals), axis=1))[0])
-            raise DatasetError(f"{self.path}: {topic}: non-finite IMU value at stamp {ts[bad]}")
-        idx = self._sorted_unique(ts, "imu")
-        vals = vals[idx]
-        return ImuData(
-            ts[idx], np.ascontiguousarray(vals[:, :3]), np.ascontiguousarray(vals[:, 3:])
-        )
-
-    def _build_groundtruth(self, t: list[int], v: list[tuple[float, ...]]) -> GroundTruth | None:
-        if "groundtruth" not in self.stats or not t:
-            return None
-        st = self.stats["groundtruth"]
-        ts = self._stamps("groundtruth", t)
-        vals = np.asarray(v, dtype=np.float64)
-        idx = self._sorted_unique(ts, "groundtruth")
-        ts, vals = ts[idx], vals[idx]
-        p = vals[:, :3]
-        try:
-            q_wxyz = normalize_quat(xyzw_to_wxyz(vals[:, 3:7]))
-        except ValueError:
-            bad = int(np.argmin(np.linalg.norm(vals[:, 3:7], axis=1)))
-            raise DatasetError(
-                f"{self.path}: {st.topic}: zero quaternion at stamp {ts[bad]}"
-            ) from None
-        if st.msgtype.endswith("/TransformStamped"):
-            self.T_body_gtsensor = gt_sensor_extrinsic(self.calib_dir, st.topic, self.notes)
-            if not np.allclose(self.T_body_gtsensor, np.eye(4)):
-                # T_gtworld_body = T_gtworld_sensor @ inv(T_body_sensor)
-                T = make_T(quat_wxyz_to_rot(q_wxyz), p) @ inv_T(self.T_body_gtsensor)
-                p = T[:, :3, 3].copy()
-                q_wxyz = rot_to_quat_wxyz(T[:, :3, :3])
-        return GroundTruth(t_ns=ts, p=np.ascontiguousarray(p), q_wxyz=q_wxyz)
-
-    def _build_leica(
-        self, t: list[int], v: list[tuple[float, float, float]]
-    ) -> PositionData | None:
-        if "leica" not in self.stats or not t:
-            return None
-        ts = self._stamps("leica", t)
-        vals = np.asarray(v, dtype=np.float64)
-        idx = self._sorted_unique(ts, "leica")
-        return PositionData(ts[idx], vals[idx].copy())
 
     # ---- cameras --------------------------------------------------------------------------
     def _choose_camera_stamps(self) -> str:

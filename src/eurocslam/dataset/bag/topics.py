@@ -1,27 +1,30 @@
-"""Which bag topic plays which role (cam0, cam1, imu, groundtruth, leica), and the message types a
-role accepts. Defaults cover EuRoC's ROS 1 bags and the MCAPs `eurocslam convert` writes. What
-the scan learns of a role's topic: its stamps (`TopicStats`), a camera's images (`ImageInfo`)."""
+"""Which bag topic plays which role (cam0, cam1, imu or accel + gyro, groundtruth, leica, and the
+cameras' CameraInfo), and the message types a role accepts. Defaults cover EuRoC's ROS 1 bags
+and the MCAPs `eurocslam convert` writes; other bags' topics are found by message type
+(`discovery`) or named with `--topic ROLE=TOPIC`."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
-import numpy as np
-from numpy.typing import NDArray
-
-from eurocslam.dataset.types import I64
 from eurocslam.errors import DatasetError
 
-ROLES = ("cam0", "cam1", "imu", "groundtruth", "leica")
+ROLES = ("cam0", "cam1", "imu", "accel", "gyro", "groundtruth", "leica", "cam0_info", "cam1_info")
 REQUIRED_ROLES = ("cam0", "cam1")  # without an IMU topic the input is stereo-only
+IMU_ROLES = ("imu", "accel", "gyro")  # one united stream, or accelerometer and gyro apart
+INFO_ROLES = {"cam0": "cam0_info", "cam1": "cam1_info"}
 ROLE_ALIASES = {
     "cam0": "cam0", "left": "cam0",
     "cam1": "cam1", "right": "cam1",
     "imu": "imu", "imu0": "imu",
+    "accel": "accel", "accelerometer": "accel",
+    "gyro": "gyro", "gyroscope": "gyro",
     "groundtruth": "groundtruth", "gt": "groundtruth", "vicon": "groundtruth",
     "leica": "leica", "leica0": "leica",
+    "cam0_info": "cam0_info", "left_info": "cam0_info",
+    "cam1_info": "cam1_info", "right_info": "cam1_info",
 }  # fmt: skip
 
 EUROC_VICON_TOPIC = "/vicon/firefly_sbx/firefly_sbx"
@@ -31,15 +34,21 @@ EUROC_VICON_TOPIC = "/vicon/firefly_sbx/firefly_sbx"
 class TopicMap:
     """Which topic plays which role. Each role lists candidates; the first present one is used.
 
-    Defaults cover EuRoC's ROS 1 bags and the MCAPs `eurocslam convert` writes. A user-given
-    topic (`--topic cam0=/my/left`) replaces the candidates and must then be present.
+    Defaults cover EuRoC's ROS 1 bags and the MCAPs `eurocslam convert` writes; roles without
+    a default (accel, gyro, the CameraInfo topics) and cameras or IMU not under a default name
+    are found by message type (`discovery`). A user-given topic (`--topic cam0=/my/left`)
+    replaces the candidates and must then be present.
     """
 
     cam0: tuple[str, ...] = ("/cam0/image_raw", "/cam0/image_raw/compressed")
     cam1: tuple[str, ...] = ("/cam1/image_raw", "/cam1/image_raw/compressed")
     imu: tuple[str, ...] = ("/imu0",)
+    accel: tuple[str, ...] = ()
+    gyro: tuple[str, ...] = ()
     groundtruth: tuple[str, ...] = ("/groundtruth/pose", EUROC_VICON_TOPIC)
     leica: tuple[str, ...] = ("/leica0", "/leica/position")
+    cam0_info: tuple[str, ...] = ()
+    cam1_info: tuple[str, ...] = ()
     # roles the user set explicitly (then the topic must exist)
     explicit: frozenset[str] = frozenset()
 
@@ -76,7 +85,7 @@ class TopicMap:
         return cls().with_topics(mapping)
 
     def describe(self) -> str:
-        return ", ".join(f"{r}={'|'.join(self.candidates(r))}" for r in ROLES)
+        return ", ".join(f"{r}={'|'.join(self.candidates(r))}" for r in ROLES if self.candidates(r))
 
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
@@ -84,6 +93,8 @@ ROLE_TYPES: dict[str, tuple[str, ...]] = {
     "cam0": IMAGE_TYPES,
     "cam1": IMAGE_TYPES,
     "imu": ("sensor_msgs/msg/Imu",),
+    "accel": ("sensor_msgs/msg/Imu",),
+    "gyro": ("sensor_msgs/msg/Imu",),
     "groundtruth": (
         "geometry_msgs/msg/PoseStamped",
         "geometry_msgs/msg/TransformStamped",
@@ -91,55 +102,10 @@ ROLE_TYPES: dict[str, tuple[str, ...]] = {
         "nav_msgs/msg/Odometry",
     ),
     "leica": ("geometry_msgs/msg/PointStamped",),
+    "cam0_info": ("sensor_msgs/msg/CameraInfo",),
+    "cam1_info": ("sensor_msgs/msg/CameraInfo",),
 }
 
 
 ROLE_FIELDS = tuple(f.name for f in fields(TopicMap) if f.name != "explicit")
 assert ROLE_FIELDS == ROLES
-
-
-@dataclass
-class TopicStats:
-    """Stamps of one role's topic in the order the bag stores them (log-time order)."""
-
-    role: str
-    topic: str
-    msgtype: str
-    header_ns: list[int] | I64 = field(default_factory=list)  # lists while scanning,
-    log_ns: list[int] | I64 = field(default_factory=list)  # int64 arrays after `freeze`
-
-    def freeze(self) -> None:
-        """Turn the stamp lists into int64 arrays (a quarter of the memory)."""
-        self.header_ns = np.asarray(self.header_ns, dtype=np.int64)
-        self.log_ns = np.asarray(self.log_ns, dtype=np.int64)
-
-    @property
-    def count(self) -> int:
-        return len(self.log_ns)
-
-    def header_array(self) -> I64:
-        return np.asarray(self.header_ns, dtype=np.int64)
-
-    def log_array(self) -> I64:
-        return np.asarray(self.log_ns, dtype=np.int64)
-
-    def unset_stamps(self) -> NDArray[np.bool_]:
-        """Messages whose header stamp is zero though they were logged later: the stamp was never
-        set (a stamp and log time both 0, as a sequence whose times start at 0 has, is real)."""
-        unset: NDArray[np.bool_] = (self.header_array() == 0) & (self.log_array() != 0)
-        return unset
-
-    @property
-    def zero_stamps(self) -> int:
-        return int(np.count_nonzero(self.unset_stamps()))
-
-
-@dataclass(frozen=True)
-class ImageInfo:
-    """What the first message of a camera topic says about its images."""
-
-    topic: str
-    msgtype: str
-    encoding: str  # Image encoding, or CompressedImage format
-    width: int
-    height: int

@@ -14,19 +14,31 @@ import numpy as np
 
 from eurocslam.dataset.asl import AslSequence, resolve_mav0
 from eurocslam.dataset.calib import (
-    CalibIssue,
     CameraCalib,
     _matrix4,
     camera_from_yaml,
+    imu_from_yaml,
+    load_sensor_yaml,
+)
+from eurocslam.dataset.calib_sources import (
+    KALIBR,
+    SENSOR_YAML,
+    CalibrationSource,
+    load_source,
+    measured_rates,
+    source_of,
+    sources_in,
+)
+from eurocslam.dataset.doctor.calib_checks import (
+    CalibIssue,
     check_camera,
     check_imu,
     check_stereo_pair,
     check_transform,
-    imu_from_yaml,
-    load_sensor_yaml,
 )
 from eurocslam.dataset.doctor.csv_scan import GT, STREAMS, ScannedCsv, scan_csv
 from eurocslam.dataset.doctor.image_checks import ImageState, check_images
+from eurocslam.dataset.doctor.kalibr_checks import check_kalibr_source
 from eurocslam.dataset.doctor.report import (
     ERROR,
     INFO,
@@ -49,8 +61,11 @@ class _Doctor:
         full: bool,
         sample: int,
         progress: Callable[[int, str], Any] | None,
+        calib: Path | None = None,
     ) -> None:
         self.path = Path(path)
+        self.calib = calib  # --calib FILE|DIR: check that calibration instead of the folder's
+        self.sources: list[CalibrationSource] = []
         self.found = Findings(self.path)
         self.add = self.found.add
         self.guard = self.found.guard
@@ -73,6 +88,10 @@ class _Doctor:
         if self.mav0 is not None:
             self.root = self.mav0.parent if self.mav0.name == "mav0" else self.mav0
             self.found.root = self.root
+            with self.guard("calibration", self.calib):
+                self.sources = (
+                    [source_of(self.calib)] if self.calib is not None else sources_in(self.mav0)
+                )
             self.check_files()
             self.check_calibration()
             for name, (folder, ncols, required) in STREAMS.items():
@@ -90,7 +109,8 @@ class _Doctor:
             for cam in ("cam0", "cam1"):
                 with self.guard("images", self.mav0 / cam / "data"):
                     csv, calib = self.csvs.get(cam), self.cams.get(cam)
-                    check_images(self.found, self.images, cam, self.mav0, csv, calib)
+                    where = self.sources[0].where(cam, "resolution") if self.sources else None
+                    check_images(self.found, self.images, cam, self.mav0, csv, calib, where)
             with self.guard("overlap"):
                 self.check_overlap()
             with self.guard("values"):
@@ -119,14 +139,16 @@ class _Doctor:
                     self.add(INFO, "files", "no IMU: a stereo-only sequence, runs visual-only", d)
                 elif required:
                     self.add(ERROR, "files", "folder missing", d)
-                elif folder == GT:
+                elif folder == GT and not (self.mav0 / "mocap0").is_dir():
                     self.add(INFO, "files", "no ground truth: evaluation needs an external file", d)
                 continue
             if not csv.is_file():
                 self.add(ERROR if required else WARNING, "files", "file missing", csv)
-            if not yml.is_file():
-                sev = ERROR if folder in ("cam0", "cam1", "imu0") else INFO
-                self.add(sev, "files", "file missing", yml)
+            calibrated = folder in ("cam0", "cam1", "imu0")
+            # (the cameras' and the IMU's calibration may come from a camchain instead)
+            kalibr = bool(self.sources) and self.sources[0].kind == KALIBR
+            if not yml.is_file() and not (calibrated and kalibr) and folder != "mocap0":
+                self.add(ERROR if calibrated else INFO, "files", "file missing", yml)
             if folder in ("cam0", "cam1") and not (d / "data").is_dir():
                 self.add(ERROR, "files", "image folder missing", d / "data")
 
@@ -136,9 +158,36 @@ class _Doctor:
             self.add(i.severity, "calibration", prefix + i.message, path, key=i.key)
 
     def check_calibration(self) -> None:
+        """Every calibration source found (or the one `--calib` names); the first is the one
+        the reader uses (an info finding says which, when it is not the folder's sensor.yaml)."""
         assert self.mav0 is not None
+        for k, src in enumerate(self.sources):
+            if k == 0 and not (src.kind == SENSOR_YAML and src.path == self.mav0):
+                self.add(INFO, "calibration", f"the reader uses {src.describe()}", src.path)
+            elif k > 0:
+                self.add(INFO, "calibration", f"also found, not used: {src.describe()}", src.path)
+            if src.kind == KALIBR:
+                cams = check_kalibr_source(self.found, src, measured_rates(self.mav0))
+                if k == 0:
+                    self.cams.update(cams)
+            elif k == 0:
+                self.check_sensor_yaml(src.path)
+            else:
+                for i in load_issues(src):
+                    self.add(ERROR, "calibration", i, src.path)
+
+        for sensor in (GT, "leica0"):
+            path = self.mav0 / sensor / "sensor.yaml"
+            if path.is_file():
+                with self.guard("calibration", path):
+                    data = load_sensor_yaml(path)
+                    if "T_BS" in data:
+                        self.calib_findings(check_transform(_matrix4(data, path)), path)
+
+    def check_sensor_yaml(self, folder: Path) -> None:
+        """cam0, cam1 and imu0 sensor.yaml files of `folder`."""
         for cam in ("cam0", "cam1"):
-            path = self.mav0 / cam / "sensor.yaml"
+            path = folder / cam / "sensor.yaml"
             if not path.is_file():
                 continue
             with self.guard("calibration", path):
@@ -149,20 +198,13 @@ class _Doctor:
                 self.calib_findings(check_camera(calib), path)
         if "cam0" in self.cams and "cam1" in self.cams:
             stereo = check_stereo_pair(self.cams["cam0"], self.cams["cam1"])
-            self.calib_findings(stereo, self.mav0 / "cam1" / "sensor.yaml", "stereo: ")
-        path = self.mav0 / "imu0" / "sensor.yaml"
+            self.calib_findings(stereo, folder / "cam1" / "sensor.yaml", "stereo: ")
+        path = folder / "imu0" / "sensor.yaml"
         if path.is_file():
             with self.guard("calibration", path):
                 data = load_sensor_yaml(path)
                 self.rates["imu0"] = yaml_rate(data)
                 self.calib_findings(check_imu(imu_from_yaml(data, path, validate=False)), path)
-        for folder in (GT, "leica0"):
-            path = self.mav0 / folder / "sensor.yaml"
-            if path.is_file():
-                with self.guard("calibration", path):
-                    data = load_sensor_yaml(path)
-                    if "T_BS" in data:
-                        self.calib_findings(check_transform(_matrix4(data, path)), path)
 
     # ---- timestamps ---------------------------------------------------------------------------
     def check_times(self, name: str) -> None:
@@ -413,7 +455,7 @@ class _Doctor:
     # ---- the reader's verdict -------------------------------------------------------------------
     def check_reader(self) -> None:
         """Open the sequence with the reader the pipeline uses: anything it refuses is an error."""
-        self.found.reader_verdict(lambda: AslSequence(self.path), self.root)
+        self.found.reader_verdict(lambda: AslSequence(self.path, calib=self.calib), self.root)
 
 
 def yaml_rate(data: dict[str, Any]) -> float:
@@ -430,8 +472,20 @@ def diagnose(
     full: bool = False,
     sample: int = 24,
     progress: Callable[[int, str], Any] | None = None,
+    calib: Path | str | None = None,
 ) -> DoctorReport:
     """Check a sequence folder (or its `mav0/`). Never raises on bad data: every problem is a
     `Finding`. `sample` images per camera are decoded (all of them with `full`); `progress(n,
-    camera)` is called once per decoded image."""
-    return _Doctor(path, full=full, sample=sample, progress=progress).run()
+    camera)` is called once per decoded image. `calib` (`--calib FILE|DIR`): check against that
+    calibration instead of the folder's own."""
+    c = Path(calib) if calib is not None else None
+    return _Doctor(path, full=full, sample=sample, progress=progress, calib=c).run()
+
+
+def load_issues(src: CalibrationSource) -> list[str]:
+    """Why a calibration source other than the one used cannot be loaded (empty: it can)."""
+    try:
+        load_source(src)
+    except EurocSlamError as e:
+        return [str(e)]
+    return []

@@ -1,6 +1,8 @@
 """The doctor on a ROS bag / MCAP input: topics and counts, rates and gaps against the
 calibration, stamp order and duplicates, header stamp vs log time, stereo pairing and time
-overlap, as `Finding`s (check "bag") of the same report as an ASL folder's."""
+overlap, and where the calibration came from (a bag's CameraInfo and `/tf_static`: each camera's
+model, frame and place on the body, the baseline; a bad CameraInfo or tf tree is the error the
+reader raises), as `Finding`s (check "bag") of the same report as an ASL folder's."""
 
 from __future__ import annotations
 
@@ -10,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from eurocslam.dataset.bag.camera_info import check_camera_info, is_rectified
 from eurocslam.dataset.bag.reader import BagSequence
-from eurocslam.dataset.bag.topics import REQUIRED_ROLES, ROLES, TopicMap
+from eurocslam.dataset.bag.topics import IMU_ROLES, INFO_ROLES, REQUIRED_ROLES, ROLES, TopicMap
 from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.doctor.report import (
     ERROR,
@@ -21,9 +24,19 @@ from eurocslam.dataset.doctor.report import (
     DoctorReport,
     Finding,
 )
+from eurocslam.dataset.imu_noise import NoiseFigures
 from eurocslam.dataset.types import I64
 from eurocslam.errors import EurocSlamError
 from eurocslam.timebase import NS_PER_S
+
+# notes of the reader that deserve a warning (the rest are informational)
+WARNING_NOTES = (
+    "zero header stamp",
+    "carries no figures",  # IMU noise: defaults used
+    "so P is used",  # P and /tf_static disagree
+    "lever arm is ignored",
+    "taken as aligned",
+)
 
 
 def _periods(t: I64) -> I64:
@@ -44,14 +57,19 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
 
     add(INFO, f"{seq.kind}: {seq.path}")
     add(INFO, f"calibration: {seq.calib_source}")
+    out.extend(Finding(INFO, "bag", line, file) for line in _calibration_lines(seq))
     for note in seq.notes:
-        add(WARNING if "zero header stamp" in note else INFO, note)
+        add(WARNING if any(m in note for m in WARNING_NOTES) else INFO, note)
     for role in ROLES:
+        if role in INFO_ROLES.values():
+            continue  # the calibration lines above
         st = seq.stats.get(role)
         if st is None:
-            if role == "imu":  # a stereo-only input: the reader's note (above) says so
+            if role in IMU_ROLES:  # stereo-only, or the other IMU form: the notes say which
                 continue
-            level = INFO if role == "leica" else WARNING
+            # a robot's bag (calibrated by its CameraInfo) has no ground truth as a rule
+            robot = seq.calib_source.startswith("CameraInfo")
+            level = INFO if role == "leica" or robot else WARNING
             add(level, f"{role}: no topic (looked for {', '.join(seq.topic_map.candidates(role))})")
             continue
         lt = st.log_array()
@@ -76,16 +94,24 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
             add(level, f"{st.topic}: log time - header stamp: median {med:.3f} ms, "
                 f"max {float(np.max(np.abs(off))):.3f} ms")  # fmt: skip
     # rates and gaps against the calibration
+    imu_rate = seq.rig.imu.rate_hz if seq.rig.imu is not None else 0.0
     nominal = {
         "cam0": seq.rig.cam0.rate_hz,
         "cam1": seq.rig.cam1.rate_hz,
-        "imu": seq.rig.imu.rate_hz if seq.rig.imu is not None else 0.0,
+        "imu": imu_rate,
+        "gyro": imu_rate,  # the united stream is on the gyro's stamps
+        "accel": 0.0,  # its own rate: gaps measured against it
     }
     for role, rate in nominal.items():
         st = seq.stats.get(role)
         if st is None or st.count < 3:
             continue
-        t = seq.camera_stamps(role) if role in ("cam0", "cam1") else seq.imu.t_ns
+        if role in ("cam0", "cam1"):
+            t = seq.camera_stamps(role)
+        elif role == "imu":
+            t = seq.imu.t_ns
+        else:
+            t = st.header_array()
         dt = _periods(t)
         if dt.size == 0:
             continue
@@ -93,8 +119,10 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
         measured = 1.0 / med if med > 0 else float("inf")
         if rate > 0 and abs(measured - rate) / rate > 0.1:
             add(WARNING, f"{st.topic}: rate {measured:.1f} Hz, calibration says {rate:g} Hz")
-        else:
+        elif rate > 0:
             add(INFO, f"{st.topic}: rate {measured:.1f} Hz (calibration {rate:g} Hz)")
+        else:
+            add(INFO, f"{st.topic}: rate {measured:.1f} Hz")
         period = 1.0 / rate if rate > 0 else med
         gaps = dt[dt > 2.5 * period * NS_PER_S]
         if gaps.size:
@@ -132,16 +160,47 @@ def check_bag_sequence(seq: BagSequence, file: str | None = None) -> list[Findin
     return out
 
 
+def _calibration_lines(seq: BagSequence) -> list[str]:
+    """Where each camera's calibration came from in the bag: CameraInfo topic, model, frame,
+    its place on the body; the baseline."""
+    out = []
+    rig = seq.rig
+    for role in ("cam0", "cam1"):
+        info = seq.static.camera_infos.get(role)
+        cam = getattr(rig, role)
+        if info is None:
+            continue
+        frame = seq.static.frame_ids.get(role) or info.frame_id or "(no frame_id)"
+        p = cam.T_body_cam[:3, 3]
+        if not seq.calib_source.startswith("CameraInfo"):
+            out.append(f"{role}: {info.topic} present, not used (calibration from elsewhere)")
+            continue
+        rect = is_rectified(check_camera_info(info), seq.stats[role].topic)
+        how = "rectified: P's pinhole" if rect else "raw: K and D"
+        out.append(
+            f"{role}: {info.topic}: {info.width}x{info.height}, distortion "
+            f"'{info.distortion_model or 'none'}' ({len(info.D)} coefficients), {how}, frame "
+            f"'{frame}', at ({p[0]:.4f}, {p[1]:.4f}, {p[2]:.4f}) m in the body frame"
+        )
+    if seq.static.camera_infos:
+        out.append(f"stereo baseline {rig.baseline:.4f} m")
+    if len(seq.static.tf):
+        out.append(f"/tf_static: {len(seq.static.tf.frames)} frames")
+    return out
+
+
 def check_bag(
     path: Path | str,
     rig: StereoRig | None = None,
     *,
     calib: Path | str | None = None,
     topics: TopicMap | Mapping[str, str] | None = None,
+    imu_noise: NoiseFigures | None = None,
 ) -> list[Finding]:
-    """`check_bag_sequence` on a path; a bag that cannot be opened gives one error finding."""
+    """`check_bag_sequence` on a path; a bag that cannot be opened (or whose calibration cannot
+    be one: a bad CameraInfo or tf tree) gives one error finding."""
     try:
-        seq = BagSequence(path, rig, calib=calib, topics=topics)
+        seq = BagSequence(path, rig, calib=calib, topics=topics, imu_noise=imu_noise)
     except EurocSlamError as e:
         return [Finding(ERROR, "bag", str(e), Path(path).name)]
     return check_bag_sequence(seq, Path(path).name)
@@ -152,10 +211,11 @@ def diagnose_bag(
     *,
     calib: Path | str | None = None,
     topics: TopicMap | Mapping[str, str] | None = None,
+    imu_noise: NoiseFigures | None = None,
 ) -> DoctorReport:
     """The doctor on a ROS bag / MCAP input: `check_bag`'s findings as a report (errors first)."""
     t0 = time.perf_counter()
-    found = check_bag(path, calib=calib, topics=topics)
+    found = check_bag(path, calib=calib, topics=topics, imu_noise=imu_noise)
     return DoctorReport(
         sequence=str(path),
         mav0=None,

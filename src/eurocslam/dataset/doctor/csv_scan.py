@@ -23,6 +23,7 @@ STREAMS: dict[str, tuple[str, int, bool]] = {
     "cam1": ("cam1", 2, True),
     "imu0": ("imu0", 7, True),
     "groundtruth": (GT, 17, False),
+    "mocap0": ("mocap0", 8, False),  # TUM-VI's ground truth (the IMU's pose)
     "leica0": ("leica0", 4, False),
 }
 MAX_EXAMPLES = 3
@@ -63,6 +64,7 @@ def expect(name: str) -> str:
         "imu0": "timestamp, gyro xyz, accel xyz",
         "groundtruth": "timestamp, p xyz, q wxyz, v xyz, bg xyz, ba xyz",
         "leica0": "timestamp, p xyz",
+        "mocap0": "timestamp, p xyz, q wxyz",
     }[name]
 
 

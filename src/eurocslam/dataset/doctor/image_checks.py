@@ -90,9 +90,12 @@ def check_images(
     mav0: Path,
     c: ScannedCsv | None,
     calib: CameraCalib | None,
+    calib_where: tuple[str, str] | None = None,
 ) -> None:
     """Images listed but missing, present but not listed, every PNG header (size against the
-    calibration, bit depth, colour, truncation), then a decoded sample (`decode_sample`)."""
+    calibration, bit depth, colour, truncation), then a decoded sample (`decode_sample`).
+    `calib_where`: the file and key the calibration's resolution comes from (default: the
+    camera's sensor.yaml, `resolution`)."""
     folder = mav0 / cam / "data"
     csv_path = mav0 / cam / "data.csv"
     if c is None or c.names is None or not folder.is_dir():
@@ -145,13 +148,14 @@ def check_images(
         ex = ", ".join(names[:MAX_EXAMPLES])
         if kind.startswith("size "):
             assert calib is not None
+            src, key = calib_where or (f"{cam}/sensor.yaml", "resolution")
             found.add(
                 ERROR,
                 "images",
-                f"{len(names)} image(s) are {kind[5:]} but sensor.yaml resolution is "
+                f"{len(names)} image(s) are {kind[5:]} but {Path(src).name} {key} is "
                 f"{calib.width}x{calib.height}: {ex}; the reader skips them",
                 folder,
-                key="resolution",
+                key=key,
             )
         elif is_format_kind(kind):
             found.add(WARNING, "images", format_message(kind, names), folder)

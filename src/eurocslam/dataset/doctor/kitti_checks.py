@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from eurocslam.dataset.calib import CameraCalib, check_camera, check_stereo_pair
+from eurocslam.dataset.calib import CameraCalib
+from eurocslam.dataset.doctor.calib_checks import check_camera, check_stereo_pair
 from eurocslam.dataset.doctor.csv_scan import MAX_EXAMPLES
 from eurocslam.dataset.doctor.image_checks import (
     ImageState,

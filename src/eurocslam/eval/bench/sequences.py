@@ -92,7 +92,10 @@ def check_sequence_folder(name: str, path: Path) -> str | None:
             return f"{path}: a KITTI sequence without {poses_path_of(path)} to evaluate against"
         return None
     if groundtruth_csv_of(path) is None:
-        return f"{path} has no mav0/state_groundtruth_estimate0/data.csv to evaluate against"
+        return (
+            f"{path} has no ground truth (mav0/state_groundtruth_estimate0 or mocap0) to "
+            "evaluate against"
+        )
     return None
 
 

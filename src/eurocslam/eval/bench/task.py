@@ -224,7 +224,10 @@ def _evaluate_run(rec: RunRecord, seq: Path, cfg: EvalConfig) -> None:
     else:
         gt_csv = groundtruth_csv_of(seq)
         if gt_csv is None:
-            rec.error = f"{seq}: no mav0/state_groundtruth_estimate0/data.csv to evaluate against"
+            rec.error = (
+                f"{seq}: no ground truth (mav0/state_groundtruth_estimate0 or mocap0) to "
+                "evaluate against"
+            )
             return
         gt, gt_file = read_trajectory(gt_csv), gt_csv
     final = rec.out_dir / RUN_FINAL
