@@ -8,7 +8,10 @@ landmarks re-found, place events); then whether every revision agrees. The cases
 
 * three replicas (MH_04, V1_02, V2_01; development world 0, first `--duration` s),
   stereo-inertial and visual-only;
+* the V1_02 replica on TUM-VI's fisheye rig (`synth --rig tumvi`), stereo-inertial;
 * the real KITTI excerpt (`../shared/data/kitti_excerpt`, where present), visual-only by itself;
+* a robot's bag: a RealSense-like flight written as a realsense-ros MCAP (raw images,
+  accelerometer and gyroscope apart, calibration only in CameraInfo and /tf_static);
 * a blackout flight (built-in motion, 30 s, cameras black and no IMU for 12-15 s: relocalization);
 * two sessions: a built-in flight run once, then again started in the first run's map.
 
@@ -92,6 +95,12 @@ def cases(
                 return o
 
             out.append((f"{short} {mode}", replica))
+
+    def fisheye(v: Variant, o: Path) -> Path:
+        _run(v, make_replica("V1_02", cache, duration, 0, rig="tumvi"), o)
+        return o
+
+    out.append(("V1_02 tumvi si", fisheye))
     if KITTI.is_dir():
 
         def kitti(v: Variant, o: Path) -> Path:
@@ -118,7 +127,24 @@ def cases(
         _run(v, seq, o, "--map", str(o.with_name(o.name + "_first") / "map"))
         return o
 
-    out += [("blackout flight", blackout), ("second session in a map", sessions)]
+    def robot_bag(v: Variant, o: Path) -> Path:
+        from eurocslam.dataset.asl import AslSequence
+        from eurocslam.dataset.bag.realsense_writer import RealsenseBagOptions, write_realsense_bag
+        from eurocslam.dataset.split_imu import read_split_imu
+
+        bag = flights / "realsense.mcap"
+        if not bag.exists():
+            seq = AslSequence(flight("realsense", SynthSpec.realsense(seed=2, duration_s=10.0)))
+            opt = RealsenseBagOptions(imu="split")
+            write_realsense_bag(seq, bag, "ros2-mcap", opt, split=read_split_imu(seq.mav0))
+        _run(v, bag, o)
+        return o
+
+    out += [
+        ("blackout flight", blackout),
+        ("second session in a map", sessions),
+        ("realsense bag, split IMU", robot_bag),
+    ]
     return out
 
 
