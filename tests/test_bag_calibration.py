@@ -391,7 +391,10 @@ def test_imu_noise_files_and_config(tmp_path: Path) -> None:
     part = noise_from_config(cfg.imu)
     assert part.gyroscope_noise_density == 2e-4 and not part.complete and not part.empty
     assert noise_from_config(config_from_dict({}).imu).empty
-    with pytest.raises(ConfigError, match=r"imu\.accelerometer_random_walk' must be >= 0"):
+    with pytest.raises(
+        ConfigError,
+        match=r"imu\.accelerometer_random_walk' value -1.0 out of range \(must be > 0\)",
+    ):
         config_from_dict({"imu": {"accelerometer_random_walk": -1.0}})
     with pytest.raises(ConfigError, match=r"imu\.gyroscope_random_walk' must be a number"):
         config_from_dict({"imu": {"gyroscope_random_walk": "x"}})
