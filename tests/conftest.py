@@ -5,6 +5,7 @@ absent (a user's machine)."""
 from __future__ import annotations
 
 import os
+import signal
 from pathlib import Path
 
 import pytest
@@ -14,6 +15,17 @@ SHARED_EUROC = Path(os.environ.get("EUROCSLAM_SHARED_EUROC", REPO.parent / "shar
 SHARED_KITTI = Path(
     os.environ.get("EUROCSLAM_SHARED_KITTI", REPO.parent / "shared/data/kitti_excerpt")
 )
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Handle SIGINT as a Python started normally does (KeyboardInterrupt), also when pytest
+    was started with SIGINT ignored: the background job of a non-interactive shell (`.ci/run &`
+    from a script) inherits an ignored SIGINT, and so would every process a test starts (a
+    disposition that survives exec). Python then installs no SIGINT handler: the Ctrl-C tests'
+    SIGINT would be ignored by `eurocslam bench` (and by `ray start`'s workers and the runs),
+    which never exits. A handled SIGINT here is a default one in every child."""
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _need(path: Path, what: str = "real EuRoC data") -> Path:

@@ -217,6 +217,34 @@ def test_ctrl_c_stops_running_runs_and_keeps_finished(tmp_path: Path, fake: str)
     assert (out / "runs/default/slow/run_0/fake_interrupted").exists()  # by a SIGINT
 
 
+def test_a_test_s_processes_handle_sigint_when_pytest_ignores_it() -> None:
+    """The Ctrl-C tests' SIGINT must reach their processes also when pytest was started with
+    SIGINT ignored (a background job of a script): conftest's pytest_configure handles it, so
+    a child starts with the default and Python raises KeyboardInterrupt there."""
+    child = "import signal; print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)"
+    prog = "\n".join(
+        [
+            "import signal, subprocess, sys",
+            "signal.signal(signal.SIGINT, signal.SIG_IGN)  # as pytest in a background job",
+            "def child():",
+            f"    r = subprocess.run([sys.executable, '-c', {child!r}], capture_output=True)",
+            "    return r.stdout.decode().strip()",
+            "print(child())  # the ignored SIGINT is inherited: no KeyboardInterrupt there",
+            "sys.path.insert(0, sys.argv[1])",
+            "import conftest",
+            "conftest.pytest_configure(None)",
+            "print(child())",
+        ]
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", prog, str(Path(__file__).parent)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.stdout.split() == ["False", "True"], r.stderr
+
+
 def test_ray_executor_without_ray_says_how_to_install(
     tmp_path: Path, fake: str, capsys, monkeypatch: pytest.MonkeyPatch
 ) -> None:
