@@ -220,7 +220,7 @@ def machine_speed(seq: Path, n_images: int = 20) -> float:
 
     import cv2
 
-    from eurocslam.dataset.asl import read_image
+    from eurocslam.dataset.images import read_image
     from eurocslam.frontend.config import FrontendConfig
     from eurocslam.frontend.features import OrbExtractor
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from eurocslam.dataset import open_sequence
-from eurocslam.dataset.asl import AslSequence, decode_image_bytes, read_numeric_csv, resolve_mav0
+from eurocslam.dataset.asl import AslSequence, read_numeric_csv, resolve_mav0
+from eurocslam.dataset.images import decode_image_bytes
 from eurocslam.errors import DatasetError
 
 

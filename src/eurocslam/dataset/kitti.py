@@ -17,10 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from eurocslam.dataset.asl import FrameEntry, ImageFileFrames, decode_image
+from eurocslam.dataset.asl import FrameEntry, ImageFileFrames
 from eurocslam.dataset.calib import CameraCalib, StereoRig
 from eurocslam.dataset.calib_yaml import camera_yaml_text
 from eurocslam.dataset.doctor.calib_checks import check_stereo
+from eurocslam.dataset.images import decode_image
 from eurocslam.dataset.kitti_files import (
     CALIB,
     IMAGE_DIRS,

@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eurocslam.dataset.asl import read_image
+from eurocslam.dataset.images import read_image
 from eurocslam.dataset.types import SequenceSource, StereoFrame, has_imu
 from eurocslam.errors import OutputError
 from eurocslam.io import ros2, ros2_batch, ros2_calib

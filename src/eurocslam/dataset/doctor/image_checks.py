@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from eurocslam.dataset.asl import PNG_SIGNATURE, decode_image
 from eurocslam.dataset.calib import CameraCalib
 from eurocslam.dataset.doctor.csv_scan import MAX_EXAMPLES, ScannedCsv
 from eurocslam.dataset.doctor.report import ERROR, WARNING, Findings
+from eurocslam.dataset.images import PNG_SIGNATURE, decode_image
 
 
 @dataclass
