@@ -129,8 +129,8 @@ def cases(
 
     def robot_bag(v: Variant, o: Path) -> Path:
         from eurocslam.dataset.asl import AslSequence
-        from eurocslam.dataset.bag.realsense_writer import RealsenseBagOptions, write_realsense_bag
         from eurocslam.dataset.split_imu import read_split_imu
+        from eurocslam.synth.robot_bag import RealsenseBagOptions, write_realsense_bag
 
         bag = flights / "realsense.mcap"
         if not bag.exists():

@@ -5,7 +5,7 @@ the folder's imu0/sensor.yaml through --imu-calib) must give the folder's trajec
 
 The ASL folder (a replica, `eurocslam synth --rig realsense` output, ...) is cropped to its
 first `--seconds` of frames; each variant is written as a realsense-ros style bag
-(`dataset/bag/realsense_writer.py`), run in its own process, and compared with the run on the
+(`synth/robot_bag.py`), run in its own process, and compared with the run on the
 folder: the largest position difference of the final and online trajectories (the same frames
 are processed: both runs stop at the last written frame's stamp) and the ATE RMSE of both
 against the folder's ground truth. CPU seconds are the child process's.
@@ -91,8 +91,8 @@ def main() -> int:
 
     sys.path.insert(0, str(REPO / "src"))
     from eurocslam.dataset.asl import AslSequence
-    from eurocslam.dataset.bag.realsense_writer import RealsenseBagOptions, write_realsense_bag
     from eurocslam.dataset.split_imu import read_split_imu
+    from eurocslam.synth.robot_bag import RealsenseBagOptions, write_realsense_bag
 
     seq = AslSequence(args.asl)
     t = seq.frame_times

@@ -61,7 +61,7 @@ def write_robot_bag(
 
     ros1 = storage == "ros1"
     if ros1:
-        from eurocslam.dataset.bag.realsense_writer import _ros1_typestore
+        from eurocslam.synth.robot_bag import _ros1_typestore
 
         ts = _ros1_typestore()
     else:

@@ -18,11 +18,11 @@ from eurocslam.dataset import open_sequence
 from eurocslam.dataset.asl import AslSequence
 from eurocslam.dataset.bag.imu_union import unite_imu
 from eurocslam.dataset.bag.reader import BagSequence
-from eurocslam.dataset.bag.realsense_writer import RealsenseBagOptions, write_realsense_bag
 from eurocslam.dataset.imu_noise import load_imu_noise
 from eurocslam.dataset.split_imu import read_split_imu
 from eurocslam.frontend.stereo import StereoRectifier
 from eurocslam.synth import SynthSpec, synthesize
+from eurocslam.synth.robot_bag import RealsenseBagOptions, write_realsense_bag
 
 FORMATS = {"ros1": ".bag", "ros2-db3": "", "ros2-mcap": ""}
 

@@ -250,8 +250,8 @@ def write_bags(out: Path, args: argparse.Namespace, rig_name: str) -> list[Path]
     """The realsense-style bags asked for (`--bag`, `--bag-images`, `--bag-imu`), written from
     the ASL folder just made into OUT/bags/; returns their paths."""
     from eurocslam.dataset.asl import AslSequence
-    from eurocslam.dataset.bag.realsense_writer import RealsenseBagOptions, write_realsense_bag
     from eurocslam.dataset.split_imu import read_split_imu
+    from eurocslam.synth.robot_bag import RealsenseBagOptions, write_realsense_bag
 
     if not args.bag:
         return []

@@ -11,6 +11,8 @@ eurocslam command reads. The motion is a built-in drone flight or a given ground
 `Scene.build(spec)` gives the same world without writing files (render single frames, with
 depth maps, for tests). `SynthSpec(trajectory=A, world_from=(A, B))` and
 `SynthSpec(trajectory=B, world_from=(A, B))` fly through one shared world (`shared_world.py`).
+`robot_bag.write_realsense_bag` writes a sequence as a robot's bag (realsense-ros topics, the
+calibration only in CameraInfo and /tf_static).
 """
 
 from typing import TYPE_CHECKING, Any

@@ -32,7 +32,7 @@ plays which role), `files` (bag paths, opening, MCAP attachments), `messages` (s
 and images from messages), `static` (tf tree, CameraInfo and frame ids read before the index
 pass), `tf_tree`, `camera_info`, `bag_rig` (the rig from them), `calibration` (the order of the
 sources, IMU noise, Vicon extrinsic), `stats` and `arrays` (what the index pass builds),
-`imu_union`, `pairing` (stereo pairs), `reader` (`BagSequence`), `writer` (`write_rosbag`,
-EuRoC's topics) and `realsense_writer` (`write_realsense_bag`, a robot's). The checks on a bag
-are in `eurocslam.dataset.doctor.bag_checks`.
+`imu_union`, `pairing` (stereo pairs), `reader` (`BagSequence`) and `writer` (`write_rosbag`,
+EuRoC's topics; a robot's, realsense-ros style, is written by `eurocslam.synth.robot_bag`). The
+checks on a bag are in `eurocslam.dataset.doctor.bag_checks`.
 """
