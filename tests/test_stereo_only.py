@@ -99,6 +99,8 @@ def test_run_goes_visual_only_by_itself(
     with open(out / "run.mcap", "rb") as f:
         topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
     assert "/imu0" not in topics and "/slam/pose" in topics
+    # nothing estimates IMU biases or a velocity without an IMU: no topics of zeros
+    assert not {"/slam/imu_bias", "/slam/velocity"} & topics
     # the run's own layout: no IMU panels, the 3D panel on the run, a copy for Foxglove 1.48
     layout = json.loads((out / "layout.json").read_text())
     assert "Plot!gyro" not in layout["configById"] and "Plot!position" in layout["configById"]

@@ -256,7 +256,7 @@ class _McapOutput:
                 streams,
                 source.groundtruth,
                 cfg.output,
-                gravity_aligned=cfg.inertial,
+                inertial=cfg.inertial,
                 drone_model=cfg.output.drone_model == "firefly"
                 or (cfg.output.drone_model == "auto" and flies_on(source.rig)),
             )

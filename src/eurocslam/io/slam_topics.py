@@ -12,11 +12,13 @@ the frame's time):
 | /slam/features | visualization_msgs/ImageMarker | features on cam0 (green: tracked) |
 | /slam/state | std_msgs/String | INIT / TRACKING / LOST |
 | /slam/stats | std_msgs/Float64MultiArray | state, counts, segment (`STATS_LABELS`) |
-| /slam/imu_bias | std_msgs/Float64MultiArray | gyro bias xyz [rad/s], accel bias xyz [m/s^2] |
-| /slam/velocity | std_msgs/Float64MultiArray | world velocity xyz [m/s], speed |
+| /slam/imu_bias | std_msgs/Float64MultiArray | gyro bias xyz [rad/s], accel bias xyz [m/s^2] (*) |
+| /slam/velocity | std_msgs/Float64MultiArray | world velocity xyz [m/s], speed (*) |
 | /slam/position_error | std_msgs/Float64MultiArray | estimate - aligned GT: xyz, norm [m] |
 | /groundtruth/drone | visualization_msgs/MarkerArray | the Firefly on `gt_body` (green) |
 | /slam/places | visualization_msgs/MarkerArray | loops, relocalizations, merges, refused loops |
+
+(*) stereo-inertial runs only: a visual-only run estimates neither.
 
 A frame left out by `frontend.track_every` has no /slam/features and no /slam/stats (nothing
 was counted; plots join the tracked frames).
@@ -129,14 +131,16 @@ class SlamMcapWriter:
         groundtruth: GroundTruth | None,
         cfg: OutputConfig | None = None,
         *,
-        gravity_aligned: bool = True,
+        inertial: bool = True,
         drone_model: bool = True,
     ) -> None:
-        """`gravity_aligned`: the estimate's world is levelled by gravity (stereo-inertial), so
-        the ground-truth overlay is placed by position and yaw only; `drone_model`: draw the
+        """`inertial`: a stereo-inertial run: its world is levelled by gravity, so the
+        ground-truth overlay is placed by position and yaw only, and it estimates the IMU's
+        biases and the velocity (/slam/imu_bias, /slam/velocity; a visual-only run writes
+        neither: nothing estimates them there); `drone_model`: draw the
         drone (EuRoC's body is its IMU frame; a camera-only rig's body is its left camera)."""
         self.sink = sink
-        self.gravity_aligned = gravity_aligned
+        self.inertial = inertial
         self.drone_model = drone_model
         self.streams = streams
         self.gt = groundtruth
@@ -166,7 +170,7 @@ class SlamMcapWriter:
             if self.cfg.groundtruth_overlay and not self._gt_aligned and self.gt is not None:
                 T_gt = _gt_pose_at(self.gt, t)
                 if T_gt is not None:
-                    self.T_world_gtworld = groundtruth_alignment(T, T_gt, self.gravity_aligned)
+                    self.T_world_gtworld = groundtruth_alignment(T, T_gt, self.inertial)
                     self._w(
                         "/tf_static",
                         ros2.TF_MESSAGE,
@@ -212,7 +216,7 @@ class SlamMcapWriter:
                 t,
                 ros2.float64_multi_array(stats, STATS_LABELS),
             )
-        if out.nav is not None:
+        if out.nav is not None and self.inertial:
             nav = out.nav
             self._w(
                 "/slam/imu_bias",
