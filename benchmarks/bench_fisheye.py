@@ -95,7 +95,7 @@ def geometry_row(rig: StereoRig, fov: float, size: str) -> dict[str, float]:
 
 def frame_rows(fov: float, size: str, replica: Path, step: int) -> dict[str, float]:
     seq = open_sequence(replica, quiet=True)
-    ex = Extractor(seq.rig, FrontendConfig(rectify_fov_deg=fov, rectify_size=size))
+    ex = Extractor.for_rig(seq.rig, FrontendConfig(rectify_fov_deg=fov, rectify_size=size))
     rect_ms, kps, matches, depths = [], [], [], []
     for k, fr in enumerate(seq.frames()):
         if k % step or fr.left is None or fr.right is None:

@@ -70,7 +70,7 @@ def speed(seq_path: Path, max_frames: int, repeat: int) -> dict[str, float]:
     out: dict[str, float] = {}
     # sequential, one thread: per-stage times
     cfg = FrontendConfig(prefetch=False)
-    extractor = Extractor(seq.rig, cfg)
+    extractor = Extractor.for_rig(seq.rig, cfg)
     tracker = StereoTracker(extractor.rectifier, cfg)
     decode: list[float] = []
     per: dict[str, list[float]] = {k: [] for k in STAGES}
@@ -93,7 +93,7 @@ def speed(seq_path: Path, max_frames: int, repeat: int) -> dict[str, float]:
     fps = []
     for _ in range(repeat):
         cfg2 = FrontendConfig(prefetch=True)
-        stream = FeatureStream(seq.rig, cfg2)
+        stream = FeatureStream(Extractor.for_rig(seq.rig, cfg2))
         tracker2 = StereoTracker(stream.extractor.rectifier, cfg2)
         # steady state: from the first frame out (the workers started) to the last
         n2 = 0

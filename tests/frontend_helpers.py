@@ -14,7 +14,7 @@ from eurocslam.geometry import F64
 class Frontend:
     def __init__(self, rig: StereoRig, config: FrontendConfig | None = None) -> None:
         config = config or FrontendConfig()
-        self.extractor = Extractor(rig, config)
+        self.extractor = Extractor.for_rig(rig, config)
         self.tracker = StereoTracker(self.extractor.rectifier, config)
 
     def process(self, frame: StereoFrame, T_world_body_pred: F64 | None = None) -> FrontendResult:

@@ -82,7 +82,7 @@ def far_apart_frames(
 def left_descriptors(scene: Scene, frames: list[int]) -> list[np.ndarray]:
     """ORB descriptors of the rectified left images of `frames`, as the frontend extracts."""
     cfg = FrontendConfig()
-    rect = StereoRectifier(scene.rig, cfg.rectify_alpha, cfg.rectify_fov_deg, cfg.rectify_size)
+    rect = StereoRectifier.for_config(scene.rig, cfg)
     g = rect.geometry
     orb = OrbExtractor(cfg, g.width, g.height)
     return [orb.extract(rect.rectify_left(scene.image(k, 0)[0])).desc for k in frames]

@@ -138,7 +138,7 @@ def test_focal_sized_rectification_keeps_the_centres_resolution() -> None:
     p = _points_in_view(r, 50)
     raw = r.rect0_to_raw(project_rect(p, g)[:, [0, 2]])
     np.testing.assert_allclose(r.raw_to_rect0(raw), project_rect(p, g)[:, [0, 2]], atol=1e-8)
-    ex = Extractor(rig, FrontendConfig(rectify_fov_deg=120.0, rectify_size="focal"))
+    ex = Extractor.for_rig(rig, FrontendConfig(rectify_fov_deg=120.0, rectify_size="focal"))
     from eurocslam.dataset.types import StereoFrame
 
     img = np.random.default_rng(0).integers(0, 255, (512, 512), dtype=np.uint8)

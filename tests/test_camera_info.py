@@ -44,8 +44,8 @@ def test_camera_info_uses_the_configured_rectify_alpha(tmp_path: Path) -> None:
     assert set(infos) == {"/cam0/camera_info", "/cam1/camera_info"}
 
     rig = open_sequence(seq).rig
-    used = Extractor(rig, FrontendConfig(rectify_alpha=0.5)).rectifier
-    default = Extractor(rig, FrontendConfig()).rectifier
+    used = Extractor.for_rig(rig, FrontendConfig(rectify_alpha=0.5)).rectifier
+    default = Extractor.for_rig(rig, FrontendConfig()).rectifier
     for topic, R, P in (
         ("/cam0/camera_info", used.R_rect0_cam0, used.P0),
         ("/cam1/camera_info", used.R_rect1_cam1, used.P1),

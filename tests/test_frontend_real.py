@@ -46,7 +46,7 @@ def _vertical_offset(left: np.ndarray, right: np.ndarray, uL: float, uR: float, 
 
 def test_rectified_stereo_matches_on_real_images(v101_frames) -> None:
     seq, frames = v101_frames
-    fe = Extractor(seq.rig, FrontendConfig())
+    fe = Extractor.for_rig(seq.rig, FrontendConfig())
     rect = fe.rectifier
     offsets: list[float] = []
     for fr in frames[::20]:
@@ -164,7 +164,7 @@ def test_degraded_frames_are_reported_and_tracking_recovers(v101_frames, mh01_fi
 def test_prefetch_stream_matches_inline_processing(v101_frames) -> None:
     seq, frames = v101_frames
     cfg = FrontendConfig(prefetch=True)
-    a = FeatureStream(seq.rig, cfg)
+    a = FeatureStream(Extractor.for_rig(seq.rig, cfg))
     tracker = StereoTracker(a.extractor.rectifier, cfg)
     b = Frontend(seq.rig, FrontendConfig(prefetch=False))
     ra = [tracker.track(ff) for _, ff in a(frames[:15])]

@@ -31,7 +31,7 @@ def tiny_sequence(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_triangulated_points_agree_with_rendered_depth(tiny_scene: Scene) -> None:
     """Stereo-matched keypoints triangulate to the depth the renderer drew at that pixel."""
-    fe = Extractor(tiny_scene.rig, FrontendConfig())
+    fe = Extractor.for_rig(tiny_scene.rig, FrontendConfig())
     g = fe.geometry
     rel_all = []
     for k in (0, 39):

@@ -18,7 +18,7 @@ import pytest
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.errors import DatasetError, SlamError
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.extraction import FrameFeatures, FrameProblem
+from eurocslam.frontend.extraction import Extractor, FrameFeatures, FrameProblem
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.workers import ExtractionWorkers
 from eurocslam.synth import Scene, SynthSpec
@@ -78,7 +78,7 @@ def test_workers_extract_what_inline_extraction_does(scene: Scene, frames, made_
     bad[3] = replace(bad[3], left=None)
     bad[5] = replace(bad[5], right=np.full_like(frames[5].right, 128))
     bad[7] = replace(bad[7], left=frames[7].left[:-8], right=frames[7].right[:-8])
-    fe = FeatureStream(scene.rig, FrontendConfig(prefetch_workers=2))
+    fe = FeatureStream(Extractor.for_rig(scene.rig, FrontendConfig(prefetch_workers=2)))
     got = list(fe(bad))
     assert [fr for fr, _ in got] == bad
     for (_, ff), fr in zip(got, bad, strict=True):
@@ -99,7 +99,7 @@ def test_one_frame_in_n_is_extracted(scene: Scene, frames) -> None:
     bad = list(frames)
     bad[3] = replace(bad[3], left=None)
     for cfg in (FrontendConfig(track_every=3), FrontendConfig(track_every=3, prefetch=False)):
-        fe = FeatureStream(scene.rig, cfg)
+        fe = FeatureStream(Extractor.for_rig(scene.rig, cfg))
         got = list(fe(bad))
         assert [fr for fr, _ in got] == bad
         for k, ((_, ff), fr) in enumerate(zip(got, bad, strict=True)):
@@ -116,7 +116,7 @@ def test_an_error_of_the_source_reaches_the_caller(scene: Scene, frames) -> None
         yield from frames[:4]
         raise DatasetError("cam0/data/x.png: truncated PNG")
 
-    fe = FeatureStream(scene.rig, FrontendConfig())
+    fe = FeatureStream(Extractor.for_rig(scene.rig, FrontendConfig()))
     seen = []
     with pytest.raises(DatasetError, match="truncated PNG"):
         for fr, _ in fe(source()):
@@ -125,7 +125,7 @@ def test_an_error_of_the_source_reaches_the_caller(scene: Scene, frames) -> None
 
 
 def test_closing_the_stream_early_stops_the_workers(scene: Scene, frames, made_shm) -> None:
-    fe = FeatureStream(scene.rig, FrontendConfig())
+    fe = FeatureStream(Extractor.for_rig(scene.rig, FrontendConfig()))
     stream = fe(iter(frames * 10))
     next(stream)
     t0 = time.perf_counter()
@@ -145,7 +145,7 @@ def test_a_worker_that_dies_is_an_error(scene: Scene, frames, idle: bool) -> Non
                 time.sleep(0.05)
             yield fr
 
-    fe = FeatureStream(scene.rig, FrontendConfig())
+    fe = FeatureStream(Extractor.for_rig(scene.rig, FrontendConfig()))
     workers = ExtractionWorkers(fe.extractor, 2)
     stream = workers.stream(source())
     next(stream)
@@ -157,7 +157,7 @@ def test_a_worker_that_dies_is_an_error(scene: Scene, frames, idle: bool) -> Non
 
 def test_the_shared_memory_has_no_name_once_the_workers_run(scene: Scene, frames, made_shm) -> None:
     """Nothing is left in /dev/shm even if the process is killed mid-run."""
-    fe = FeatureStream(scene.rig, FrontendConfig())
+    fe = FeatureStream(Extractor.for_rig(scene.rig, FrontendConfig()))
     stream = fe(iter(frames))
     next(stream)
     assert not _left(made_shm)
@@ -170,7 +170,7 @@ def test_workers_that_do_not_start_leave_extraction_inline(
     """A Python that is not one (a frozen app) or cannot import eurocslam: a note, then the
     same features extracted in the caller."""
     monkeypatch.setattr(sys, "executable", "/bin/false")
-    fe = FeatureStream(scene.rig, FrontendConfig())
+    fe = FeatureStream(Extractor.for_rig(scene.rig, FrontendConfig()))
     got = list(fe(frames[:3]))
     for (_, ff), fr in zip(got, frames[:3], strict=True):
         _same(ff, fe.extractor.extract(fr))
@@ -261,7 +261,7 @@ def test_without_worker_processes_extraction_runs_inline(
         raise OSError("process creation not permitted")
 
     monkeypatch.setattr(subprocess, "Popen", refuse)
-    fe = FeatureStream(scene.rig, FrontendConfig())
+    fe = FeatureStream(Extractor.for_rig(scene.rig, FrontendConfig()))
     got = list(fe(frames[:4]))
     assert [fr for fr, _ in got] == frames[:4]
     for (_, ff), fr in zip(got, frames[:4], strict=True):
@@ -287,11 +287,12 @@ assert eurocslam.__file__.startswith({str(copy)!r}), eurocslam.__file__
 from eurocslam.synth import Scene, SynthSpec
 from eurocslam.dataset.types import StereoFrame
 from eurocslam.frontend.config import FrontendConfig
+from eurocslam.frontend.extraction import Extractor
 from eurocslam.frontend.stream import FeatureStream
 scene = Scene.build(SynthSpec.tiny(seed=2))
 frames = [StereoFrame(int(scene.cam_t_ns[k]), scene.image(k, 0)[0], scene.image(k, 1)[0])
           for k in range(3)]
-fe = FeatureStream(scene.rig, FrontendConfig())
+fe = FeatureStream(Extractor.for_rig(scene.rig, FrontendConfig()))
 print(len(list(fe(frames))), len(fe.cost.worker_peak_rss_mb))
 """
     r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
@@ -309,7 +310,7 @@ def test_workers_started_early_are_the_ones_that_extract(scene: Scene, frames) -
     spawn.start_early(2)
     assert spawn._early is not None
     early = sorted(p.pid for p in spawn._early.procs)
-    extractor = Extractor(scene.rig, FrontendConfig())
+    extractor = Extractor.for_rig(scene.rig, FrontendConfig())
     workers = ExtractionWorkers(extractor, 2)
     assert spawn._early is None
     assert sorted(p.pid for p in workers._procs) == early

@@ -29,7 +29,7 @@ class Views:
     def __init__(self, scene: Scene) -> None:
         cfg = FrontendConfig()
         self.scene = scene
-        self.extractor = Extractor(scene.rig, cfg)
+        self.extractor = Extractor.for_rig(scene.rig, cfg)
         g = self.extractor.geometry
         radius_px = np.deg2rad(cfg.track_radius_deg) * g.fx
         self.recognizer = PlaceRecognizer(

@@ -91,14 +91,18 @@ def _unusable(t_ns: int, problem: FrameProblem) -> FrameFeatures:
 class Extractor:
     """Rectification, ORB on both images and stereo matching for one rig and configuration."""
 
-    def __init__(self, rig: StereoRig, config: FrontendConfig) -> None:
-        self.rig = rig
+    def __init__(self, rectifier: StereoRectifier, config: FrontendConfig) -> None:
+        """`rectifier`: the rig rectified as `config` asks (`StereoRectifier.for_config`)."""
+        self.rig = rectifier.rig
         self.config = config
-        self.rectifier = StereoRectifier(
-            rig, config.rectify_alpha, config.rectify_fov_deg, config.rectify_size
-        )
+        self.rectifier = rectifier
         self.scale = pyramid_scales(config)
         self._local = threading.local()
+
+    @classmethod
+    def for_rig(cls, rig: StereoRig, config: FrontendConfig) -> Extractor:
+        """An extractor with its own rectification of `rig`."""
+        return cls(StereoRectifier.for_config(rig, config), config)
 
     @property
     def geometry(self) -> RectifiedStereo:

@@ -18,6 +18,7 @@ import numpy as np
 from eurocslam.camera import rect_to_raw, rectify_stereo
 from eurocslam.dataset.calib import CameraCalib, StereoRig
 from eurocslam.dataset.types import U8
+from eurocslam.frontend.config import FrontendConfig
 from eurocslam.geometry import F64
 
 
@@ -58,6 +59,11 @@ class StereoRectifier:
                 c1.K, c1.D, rect.R_rect1_cam1, rect.P1, size, cv2.CV_16SC2
             )
         self._size = size
+
+    @classmethod
+    def for_config(cls, rig: StereoRig, config: FrontendConfig) -> StereoRectifier:
+        """The rig rectified as the frontend's configuration asks (`rectify_*`)."""
+        return cls(rig, config.rectify_alpha, config.rectify_fov_deg, config.rectify_size)
 
     @property
     def size(self) -> tuple[int, int]:

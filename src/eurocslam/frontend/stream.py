@@ -11,9 +11,7 @@ import logging
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
-from eurocslam.dataset.calib import StereoRig
 from eurocslam.dataset.types import StereoFrame
-from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import Extractor, FrameFeatures
 
 logger = logging.getLogger(__name__)
@@ -33,9 +31,9 @@ class ExtractionCost:
 class FeatureStream:
     """Extraction for one rig and configuration; `cost` after a stream ends."""
 
-    def __init__(self, rig: StereoRig, config: FrontendConfig) -> None:
-        self.extractor = Extractor(rig, config)
-        self.config = config
+    def __init__(self, extractor: Extractor) -> None:
+        self.extractor = extractor
+        self.config = extractor.config
         self.cost = ExtractionCost()  # of the last stream
 
     def __call__(

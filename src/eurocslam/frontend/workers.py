@@ -116,7 +116,7 @@ def _worker_main(conn: Connection) -> None:
     # while the parent starts, outside the run's wall clock)
     cpu0 = time.process_time()
     n_slots, shape = setup.n_slots, setup.shape
-    extractor = Extractor(setup.rig, setup.config)
+    extractor = Extractor.for_rig(setup.rig, setup.config)
     shm = _attach(setup.shm_name)
     images = np.ndarray((n_slots, 2, *shape), np.uint8, buffer=shm.buf)
     try:

@@ -27,7 +27,9 @@ from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimat
 from eurocslam.config import RunConfig, resolve_mode
 from eurocslam.dataset.types import SequenceSource, has_imu
 from eurocslam.errors import ConfigError
-from eurocslam.frontend.extraction import FrameFeatures, FrameProblem
+from eurocslam.frontend.extraction import Extractor, FrameFeatures, FrameProblem
+from eurocslam.frontend.projection import pyramid_scales
+from eurocslam.frontend.stereo import StereoRectifier
 from eurocslam.frontend.stream import FeatureStream
 from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult, MapCorrection, TrackingState, TrackPath
@@ -70,20 +72,20 @@ class SlamPipeline:
         self.observers = list(observers)
         self.imu = source.imu
         self.summary = RunSummary(sequence=source.name, mode=self.cfg.mode)
-        self.features = FeatureStream(source.rig, self.cfg.frontend)
-        self.stereo = self.features.extractor.geometry
+        fc = self.cfg.frontend
+        rectifier = StereoRectifier.for_config(source.rig, fc)  # the rectified rig, built once
+        self.stereo = rectifier.geometry
+        self.features = FeatureStream(Extractor(rectifier, fc))
         self.health = Health(self.cfg.health, self.cfg.inertial)
         self.recovery = Recovery(self.health, self.cfg.places if self.cfg.places.enabled else None)
-        self.tracker = StereoTracker(
-            self.features.extractor.rectifier, self.cfg.frontend.for_mode(self.cfg.inertial)
-        )
+        self.tracker = StereoTracker(rectifier, fc.for_mode(self.cfg.inertial))
         self.frames = WorldFrames()  # the world frame of each segment
         self.places = (
             PlaceStage.create(
                 self.cfg.places,
                 self.stereo,
-                self.tracker.scale,
-                self.stereo.fx * np.radians(self.cfg.frontend.track_radius_deg),
+                pyramid_scales(fc),
+                self.stereo.fx * np.radians(fc.track_radius_deg),
                 self.frames,
                 self._map_points,
             )

@@ -37,7 +37,7 @@ def views(spec: SynthSpec, step_s: float, config: FrontendConfig | None = None) 
     """Every `step_s` seconds of the sequence `spec` describes (rounded to whole frames)."""
     cfg = config or FrontendConfig()
     scene = Scene.build(spec)
-    rect = StereoRectifier(scene.rig, cfg.rectify_alpha, cfg.rectify_fov_deg, cfg.rectify_size)
+    rect = StereoRectifier.for_config(scene.rig, cfg)
     g = rect.geometry
     orb = OrbExtractor(cfg, g.width, g.height)
     t = scene.cam_t_ns
