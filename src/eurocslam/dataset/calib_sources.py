@@ -31,6 +31,7 @@ from eurocslam.dataset.calib import (
 from eurocslam.dataset.calib_kalibr import NOISE_KEYS, ImuNoise, kalibr_rig
 from eurocslam.dataset.rig import StereoRig
 from eurocslam.errors import CalibrationError
+from eurocslam.timebase import NS_PER_S
 
 SENSOR_YAML = "sensor.yaml"
 KALIBR = "kalibr"
@@ -148,7 +149,7 @@ def _stream_rate(csv: Path) -> float | None:
     steps = np.diff(np.array(sorted(set(stamps)), dtype=np.int64))
     if steps.size == 0:
         return None
-    return round(1e9 / float(np.median(steps)), 2)
+    return round(NS_PER_S / float(np.median(steps)), 2)
 
 
 def measured_rates(mav0: Path | None) -> dict[str, float]:

@@ -172,7 +172,7 @@ def _resample(t_src: Any, v_src: F64, rate_hz: float | None) -> tuple[Any, F64]:
     """A stream at `rate_hz` over the source's span by linear interpolation (None: as is)."""
     if rate_hz is None:
         return t_src, v_src
-    period = 1e9 / rate_hz
+    period = NS_PER_S / rate_hz
     n = int(np.floor((int(t_src[-1]) - int(t_src[0])) / period)) + 1
     t = int(t_src[0]) + np.round(np.arange(n) * period).astype(np.int64)
     x = (t_src - t_src[0]).astype(np.float64)

@@ -161,8 +161,8 @@ class Scene:
         split = None
         if spec.accel_rate_hz is not None:
             t_acc = t_lo + np.round(
-                np.arange(int((t_hi - t_lo) * spec.accel_rate_hz // 1e9) + 1)
-                * 1e9
+                np.arange(int((t_hi - t_lo) * spec.accel_rate_hz // NS_PER_S) + 1)
+                * NS_PER_S  # exact either way: whole nanoseconds below 2**53
                 / spec.accel_rate_hz
             ).astype(np.int64)
             acc = simulate_accelerometer(
@@ -177,7 +177,7 @@ class Scene:
         if shared_clock:
             cam_t = imu.t_ns[::ratio_i].copy()
         else:
-            cam_period = 1e9 / cam_rate
+            cam_period = NS_PER_S / cam_rate
             n_cam = int((int(imu.t_ns[-1]) - t_lo) // cam_period) + 1
             cam_t = t_lo + np.round(np.arange(n_cam) * cam_period).astype(np.int64)
         if cam_t.size < 2:
@@ -196,7 +196,7 @@ class Scene:
         if spec.trajectory is not None:
             # the world encloses the whole recorded flight, so every crop of a sequence flies
             # through the same room
-            path = world_motion.spline.positions((cam_t - world_motion.t0_ns) * 1e-9)
+            path = world_motion.spline.positions(ns_to_s(cam_t - world_motion.t0_ns))
             step = max(1, len(gt_euroc.p) // 4000)
             p_all = gt_euroc.p[::step]
             if motion.world_R is not None:

@@ -9,6 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from eurocslam.dataset.types import I64
+from eurocslam.timebase import NS_PER_S
 
 
 def rate_hz(stamps: I64) -> float:
@@ -16,7 +17,7 @@ def rate_hz(stamps: I64) -> float:
     t = np.unique(np.asarray(stamps, dtype=np.int64))
     if t.size < 2:
         return 0.0
-    return round(1e9 / float(np.median(np.diff(t))), 3)
+    return round(NS_PER_S / float(np.median(np.diff(t))), 3)
 
 
 @dataclass
