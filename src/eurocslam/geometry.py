@@ -150,7 +150,7 @@ def _det3_sign_positive(R: F64) -> bool:
     formula gives its sign), by the triple product on Python floats instead of an LU
     factorisation (`np.linalg.det`: its wrapper is most of `rigid`'s hot path)."""
     (a, b, c), (d, e, f), (g, h, i) = R.tolist()
-    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0
+    return bool(a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0)
 
 
 def extrapolate(Ta: F64, Tb: F64, s: float) -> F64:
