@@ -135,7 +135,7 @@ def rigid(T: F64) -> F64:
         np.abs(R.T @ R - _I3).max() < 1e-12
         and T[3, 3] == 1.0
         and not T[3, :3].any()
-        and np.linalg.det(R) > 0
+        and _det3_sign_positive(R)
     ):
         return cast(F64, T.copy())  # already rigid to round-off: skip the SVD (hot path)
     u, _, vt = np.linalg.svd(R)
@@ -143,6 +143,14 @@ def rigid(T: F64) -> F64:
     if np.linalg.det(R) < 0:
         R = u @ np.diag([1.0, 1.0, -1.0]) @ vt
     return make_T(R, T[:3, 3])
+
+
+def _det3_sign_positive(R: F64) -> bool:
+    """det(R) > 0 for a 3x3 `R` already orthogonal to 1e-12 (det +-1 to round-off: any
+    formula gives its sign), by the triple product on Python floats instead of an LU
+    factorisation (`np.linalg.det`: its wrapper is most of `rigid`'s hot path)."""
+    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+    return bool(a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g) > 0)
 
 
 def extrapolate(Ta: F64, Tb: F64, s: float) -> F64:
@@ -165,11 +173,13 @@ def skew(v: F64) -> F64:
 def so3_exp(w: F64) -> F64:
     """Rodrigues: rotation matrix from a rotation vector (3,)."""
     w = np.asarray(w, dtype=np.float64)
-    th = float(np.linalg.norm(w))
+    flat = w.ravel()
+    th = math.sqrt(float(flat.dot(flat)))  # np.linalg.norm's own arithmetic, without its wrapper
     if th < 1e-12:
         return np.eye(3) + skew(w)
-    k = skew(w / th)
-    return cast(F64, np.eye(3) + np.sin(th) * k + (1 - np.cos(th)) * (k @ k))
+    x, y, z = (w / th).tolist()
+    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])  # skew(w / th)
+    return cast(F64, _I3 + np.sin(th) * k + (1 - np.cos(th)) * (k @ k))
 
 
 def so3_log(r: F64) -> F64:

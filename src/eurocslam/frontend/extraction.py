@@ -134,9 +134,10 @@ class Extractor:
         problem = FrameProblem.SKIPPED if n % self.config.track_every else self.frame_problem(frame)
         return None if problem is None else _unusable(frame.t_ns, problem)
 
-    def extract(self, frame: StereoFrame) -> FrameFeatures:
-        """Rectify, ORB on both images, stereo matching."""
-        problem = self.frame_problem(frame)
+    def extract(self, frame: StereoFrame, checked: bool = False) -> FrameFeatures:
+        """Rectify, ORB on both images, stereo matching. `checked`: `without_extraction` has
+        passed the frame already (the image check is not repeated)."""
+        problem = None if checked else self.frame_problem(frame)
         if problem is not None or frame.left is None or frame.right is None:
             return _unusable(frame.t_ns, problem or FrameProblem.MISSING)
         t0 = time.perf_counter()

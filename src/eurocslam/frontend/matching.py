@@ -45,12 +45,37 @@ def disparity_window(config: FrontendConfig, geom: RectifiedStereo) -> tuple[flo
 
 
 def _first_per_group(group: NDArray[np.intp], key: NDArray[np.int32]) -> NDArray[np.intp]:
-    """Indices (into the pair arrays) of the smallest `key` for each distinct `group`."""
-    order = np.lexsort((key, group))
+    """Indices (into the pair arrays) of the smallest `key` for each distinct `group`
+    (non-negative). The order is `np.lexsort((key, group))`'s: one stable sort of group and key
+    packed into one int64 (a Hamming distance takes 9 bits), at a fraction of lexsort's cost
+    (1/4-1/6 where `group` is sorted already, as the left keypoints are)."""
+    if group.size == 0:
+        return np.zeros(0, np.intp)
+    k0 = int(key.min())
+    span = int(key.max()) - k0 + 1
+    if (int(group.max()) + 1) * span < 1 << 62:
+        packed = group.astype(np.int64) * span + (key.astype(np.int64) - k0)
+        order = np.argsort(packed, kind="stable")
+    else:
+        order = np.lexsort((key, group))
     g = group[order]
     first = np.ones(g.size, dtype=bool)
     first[1:] = g[1:] != g[:-1]
     return order[first]
+
+
+def _group_min(n: int, group: NDArray[np.intp], value: NDArray[np.int32]) -> NDArray[np.int64]:
+    """Per index 0..n-1 the smallest `value` of its `group` entries (1 << 20 where none):
+    `np.minimum.at` on a `1 << 20` array, by one `reduceat` where `group` is sorted (the left
+    keypoints of the candidate pairs are)."""
+    out = np.full(n, 1 << 20, dtype=np.int64)
+    if group.size == 0 or np.any(group[1:] < group[:-1]):
+        np.minimum.at(out, group, value)
+        return out
+    starts = np.flatnonzero(np.concatenate([[True], group[1:] != group[:-1]]))
+    mins = np.minimum.reduceat(value, starts)
+    out[group[starts]] = np.minimum(out[group[starts]], mins)
+    return out
 
 
 def candidate_pairs(
@@ -173,8 +198,7 @@ def match_stereo(
     best_d_of_l[best_l] = dist[best_pair]
     # second best among *distinct* candidates (> 2 px away from the best on the row)
     distinct = np.abs(right.uv[rj, 0] - right.uv[best_r_of_l[li], 0]) > 2.0
-    second = np.full(nl, 1 << 20, dtype=np.int64)
-    np.minimum.at(second, li[distinct], dist[distinct])
+    second = _group_min(nl, li[distinct], dist[distinct])
     # best left candidate per right keypoint (left-right consistency)
     best_pair_r = _first_per_group(rj, dist)
     best_l_of_r = np.full(len(right), -1, dtype=np.intp)

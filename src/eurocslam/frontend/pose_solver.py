@@ -7,20 +7,39 @@ matches a frame's descriptors to a set of points first. Poses are `T_rect0_world
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import cv2
 import numpy as np
+from numpy.linalg import LinAlgError
 from numpy.typing import NDArray
 
 from eurocslam.camera import RectifiedStereo
 from eurocslam.geometry import F64, make_T, rigid, so3_exp
+
+_SOLVE1 = np.linalg._umath_linalg.solve1  # what np.linalg.solve runs for a vector b
 
 CHI2_STEREO_95 = 7.815  # chi-square 95 %, 3 dof: a stereo measurement (u, uR, v) in sigmas
 CHI2_MONO_95 = 5.991  # 2 dof: a mono one (u, v)
 POSE_IN_FRONT_M = 0.05  # a point nearer the camera plane (or behind) weighs nothing in a solve
 MIN_PNP_POINTS = 6  # fewer correspondences (or RANSAC inliers): no PnP pose
 _CONVERGED = 1e-5  # a Gauss-Newton step below this (10 um / 10 urad) ends the iterations
+_DAMPING = 1e-9 * np.eye(6)  # added to the normal equations' matrix
+
+
+def _raise_singular(err: str, flag: int) -> None:
+    raise LinAlgError("Singular matrix")
+
+
+def _solve6(H: F64, g: F64) -> F64:
+    """`np.linalg.solve(H, g)` for a float64 (6, 6) and (6,): the same LAPACK gufunc under the
+    same error state, without the wrapper's checks and conversions (a call per Gauss-Newton
+    iteration of every pose solve)."""
+    with np.errstate(
+        call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore"
+    ):
+        return _SOLVE1(H, g, signature="dd->d")  # type: ignore[no-any-return]
 
 
 def optimize_pose(
@@ -73,13 +92,16 @@ def optimize_pose(
     J = np.empty((6, 3, n))
     r = np.empty((3, n))
     previous: NDArray[np.bool_] | None = None
+    # the residuals at the current pose: a round starts where the last one ended (or stopped
+    # without a step), at the pose whose residuals classified the measurements
+    res = residuals(T)
     for rnd in range(rounds):
         robust = rnd < rounds - 1
         if robust and previous is not None and np.array_equal(previous, inlier):
             continue  # the last round's inliers again: its converged pose stands
         previous = inlier
         for _ in range(iterations):
-            X, Y, Z, iz, front, ru, rr, rv, e2 = residuals(T)
+            X, Y, Z, iz, front, ru, rr, rv, e2 = res
             good = inlier & front
             if np.count_nonzero(good) < 4:
                 break
@@ -114,14 +136,15 @@ def optimize_pose(
             H = Jw @ J.reshape(6, 3 * n).T
             g = Jw @ r.reshape(-1)
             try:
-                dx = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
-            except np.linalg.LinAlgError:
+                dx = -_solve6(H + _DAMPING, g)
+            except LinAlgError:
                 break
             dR = so3_exp(dx[3:])
             T = make_T(dR @ T[:3, :3], dR @ T[:3, 3] + dx[:3])
-            if np.linalg.norm(dx) < _CONVERGED:
+            res = residuals(T)
+            if math.sqrt(dx.dot(dx)) < _CONVERGED:  # np.linalg.norm's own arithmetic
                 break
-        *_, front, _, _, _, chi2 = residuals(T)
+        *_, front, _, _, _, chi2 = res
         inlier = (chi2 < thr) & front
     return rigid(T), inlier, chi2
 

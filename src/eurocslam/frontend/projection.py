@@ -9,16 +9,18 @@ needs; `rect_T_from_body` / `body_T_from_rect` convert from and to `T_world_body
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from eurocslam.camera import RectifiedStereo
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.features import Features, hamming
 from eurocslam.geometry import F64, inv_T, rigid
+
+if TYPE_CHECKING:  # the caller builds the tree: the extraction workers need no scipy
+    from scipy.spatial import cKDTree
 
 IN_FRONT_M = 0.1  # a point this close to the camera plane or behind it does not project
 MAX_OCTAVE_GAP = 2  # pyramid levels between a landmark's octave and a keypoint matched to it

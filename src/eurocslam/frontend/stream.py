@@ -57,7 +57,7 @@ class FeatureStream:
             ex = self.extractor
             for n, frame in enumerate(frames):
                 local = ex.without_extraction(frame, n)
-                yield frame, ex.extract(frame) if local is None else local
+                yield frame, ex.extract(frame, checked=True) if local is None else local
             return
         try:
             yield from workers.stream(frames)

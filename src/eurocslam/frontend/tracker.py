@@ -28,6 +28,7 @@ from eurocslam.frontend.motion import VelocityModel
 from eurocslam.frontend.pose_solver import optimize_pose, pose_from_descriptors
 from eurocslam.frontend.projection import (
     MatchRule,
+    Projection,
     body_T_from_rect,
     octave_sigma,
     project_map,
@@ -295,10 +296,12 @@ class StereoTracker:
         T_rc: F64,
         radius: float,
         sigma_all: F64,
+        proj: Projection | None = None,
     ) -> tuple[F64, NDArray[np.intp], NDArray[np.intp], int]:
-        """Projection search at T_rc, then pose optimisation. (T, inlier rows, kps, n_matched)."""
+        """Projection search at T_rc (`proj`: the map projected there already), then pose
+        optimisation. (T, inlier rows, kps, n_matched)."""
         c, g, m = self.config, self.rectified, self.map
-        proj = project_map(T_rc, m.xyz, g)
+        proj = project_map(T_rc, m.xyz, g) if proj is None else proj
         rows_vis = np.nonzero(proj.in_view)[0]
         rows, kps, _ = search_by_projection(
             proj, rows_vis, m.desc, m.octave, ff.left, ff.stereo.uR, tree, self.scale,
@@ -341,11 +344,13 @@ class StereoTracker:
         # pass 1: at the prediction (wider window without an external prediction)
         r1 = radius * (1.0 if have_pred else WINDOW_NO_PRIOR)
         path = TrackPath.PROJECTION
-        T_rc, rows, kps, n_match = self._match_and_optimize(ff, tree, T_pred_rc, r1, sigma_all)
+        T_rc, rows, kps, n_match = self._match_and_optimize(
+            ff, tree, T_pred_rc, r1, sigma_all, proj
+        )
         if rows.size < c.min_tracked:
             path = TrackPath.PROJECTION_WIDE
             T_rc, rows, kps, n_match = self._match_and_optimize(
-                ff, tree, T_pred_rc, WINDOW_WIDE * radius, sigma_all
+                ff, tree, T_pred_rc, WINDOW_WIDE * radius, sigma_all, proj
             )
         if rows.size < max(c.min_tracked, n_match // 2):
             # verify / recover without the prior: descriptor matching + PnP RANSAC

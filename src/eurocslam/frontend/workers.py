@@ -124,7 +124,9 @@ def _worker_main(conn: Connection) -> None:
         while (task := conn.recv()) is not None:
             slot, t_ns = task
             try:
-                ff = extractor.extract(StereoFrame(t_ns, images[slot, 0], images[slot, 1]))
+                # the reader sends only frames that passed `without_extraction`
+                frame = StereoFrame(t_ns, images[slot, 0], images[slot, 1])
+                ff = extractor.extract(frame, checked=True)
             except Exception:
                 conn.send(_WorkerFailure(traceback.format_exc()))
                 return

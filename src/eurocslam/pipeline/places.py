@@ -93,6 +93,14 @@ COVISIBLE_LOOKBACK = 10
 COVISIBLE_MIN_SHARED = 15
 
 
+def _n_shared(a: NDArray[np.int64], b: NDArray[np.int64]) -> int:
+    """How many values two sorted unique arrays share (`np.intersect1d(a, b).size`)."""
+    if a.size == 0 or b.size == 0:
+        return 0
+    pos = np.minimum(np.searchsorted(b, a), b.size - 1)
+    return int(np.count_nonzero(b[pos] == a))
+
+
 def _size(D: F64) -> tuple[float, float]:
     return float(np.linalg.norm(D[:3, 3])), float(np.degrees(np.linalg.norm(so3_log(D[:3, :3]))))
 
@@ -126,6 +134,7 @@ class PlaceStage:
         # per merged segment: (its keyframe, a keyframe of another segment it recognised, the
         # first seen from the second): where the segment sits in the frame, refined at the end
         self._samples: dict[int, list[tuple[int, int, F64]]] = {}
+        self._landmark_sets: dict[int, NDArray[np.int64]] = {}  # key -> `_landmark_set`
         self.n_queries = 0
 
     @classmethod
@@ -243,16 +252,26 @@ class PlaceStage:
         `COVISIBLE_MIN_SHARED` landmarks with it (0 where none does). A loop candidate that
         looks less like the query than those neighbours do is no evidence of a revisit; DBoW2 /
         ORB-SLAM normalise loop scores this way, and most queries then verify no candidate."""
-        ids = view.landmark_ids[view.landmark_ids >= 0]
+        ids = self._landmark_set(view)
         floor = float("inf")
         for i in range(max(index - COVISIBLE_LOOKBACK, 0), index):
             key = self._key_of.get((segment, i))
             if key is None:
                 continue
-            other = self.recognizer.get(key)
-            if np.intersect1d(ids, other.landmark_ids).size >= COVISIBLE_MIN_SHARED:
+            other = self._landmark_set(self.recognizer.get(key))
+            if _n_shared(ids, other) >= COVISIBLE_MIN_SHARED:
                 floor = min(floor, self.recognizer.db.score(key, view.bow))
         return floor if floor != float("inf") else 0.0
+
+    def _landmark_set(self, view: PlaceView) -> NDArray[np.int64]:
+        """The landmarks a view observes, sorted and unique (kept per keyframe: each is one of
+        the next `COVISIBLE_LOOKBACK` queries' neighbours)."""
+        s = self._landmark_sets.get(view.key)
+        if s is None:
+            s = np.unique(view.landmark_ids[view.landmark_ids >= 0])
+            if view.key >= 0:
+                self._landmark_sets[view.key] = s
+        return s
 
     def _points(self, cand: PlaceView) -> CandidatePoints:
         """A keyframe's points in its world frame: the map's positions of its landmarks, its
