@@ -43,6 +43,7 @@ from eurocslam.geometry import (
 from eurocslam.maps.store import MapKeyframe
 from eurocslam.pipeline.frames import FrameView
 from eurocslam.pipeline.records import PlaceEvent, PlaceKind
+from eurocslam.places.covisibility import COVISIBLE_LOOKBACK, Covisibility
 from eurocslam.places.loop_gate import loop_gate, loop_significance, psd
 from eurocslam.places.recognizer import CandidatePoints, PlaceMatch, PlaceRecognizer, PlaceView
 from eurocslam.places.vocabulary import BowVector, Vocabulary, default_vocabulary
@@ -87,20 +88,6 @@ class PlaceAnswer:
     T_seg_query: F64 | None = None
 
 
-# covisible keyframes (`PlaceStage._covisible_floor`): among the segment's last 10 keyframes,
-# those sharing at least 15 landmarks with the query (ORB-SLAM's covisibility graph edge)
-COVISIBLE_LOOKBACK = 10
-COVISIBLE_MIN_SHARED = 15
-
-
-def _n_shared(a: NDArray[np.int64], b: NDArray[np.int64]) -> int:
-    """How many values two sorted unique arrays share (`np.intersect1d(a, b).size`)."""
-    if a.size == 0 or b.size == 0:
-        return 0
-    pos = np.minimum(np.searchsorted(b, a), b.size - 1)
-    return int(np.count_nonzero(b[pos] == a))
-
-
 def _size(D: F64) -> tuple[float, float]:
     return float(np.linalg.norm(D[:3, 3])), float(np.degrees(np.linalg.norm(so3_log(D[:3, :3]))))
 
@@ -134,7 +121,7 @@ class PlaceStage:
         # per merged segment: (its keyframe, a keyframe of another segment it recognised, the
         # first seen from the second): where the segment sits in the frame, refined at the end
         self._samples: dict[int, list[tuple[int, int, F64]]] = {}
-        self._landmark_sets: dict[int, NDArray[np.int64]] = {}  # key -> `_landmark_set`
+        self._covisibility = Covisibility(recognizer)
         self.n_queries = 0
 
     @classmethod
@@ -247,31 +234,10 @@ class PlaceStage:
         return self.recognizer.find(view, accept, self._points, min_score=min_score)
 
     def _covisible_floor(self, view: PlaceView, segment: int, index: int) -> float:
-        """The least appearance score of the query against its covisible keyframes: the
-        segment's last `COVISIBLE_LOOKBACK` keyframes that share at least
-        `COVISIBLE_MIN_SHARED` landmarks with it (0 where none does). A loop candidate that
-        looks less like the query than those neighbours do is no evidence of a revisit; DBoW2 /
-        ORB-SLAM normalise loop scores this way, and most queries then verify no candidate."""
-        ids = self._landmark_set(view)
-        floor = float("inf")
-        for i in range(max(index - COVISIBLE_LOOKBACK, 0), index):
-            key = self._key_of.get((segment, i))
-            if key is None:
-                continue
-            other = self._landmark_set(self.recognizer.get(key))
-            if _n_shared(ids, other) >= COVISIBLE_MIN_SHARED:
-                floor = min(floor, self.recognizer.db.score(key, view.bow))
-        return floor if floor != float("inf") else 0.0
-
-    def _landmark_set(self, view: PlaceView) -> NDArray[np.int64]:
-        """The landmarks a view observes, sorted and unique (kept per keyframe: each is one of
-        the next `COVISIBLE_LOOKBACK` queries' neighbours)."""
-        s = self._landmark_sets.get(view.key)
-        if s is None:
-            s = np.unique(view.landmark_ids[view.landmark_ids >= 0])
-            if view.key >= 0:
-                self._landmark_sets[view.key] = s
-        return s
+        """The least score a loop candidate of the segment's keyframe `index` needs
+        (`places/covisibility.py`)."""
+        lookback = range(max(index - COVISIBLE_LOOKBACK, 0), index)
+        return self._covisibility.floor(view, (self._key_of.get((segment, i)) for i in lookback))
 
     def _points(self, cand: PlaceView) -> CandidatePoints:
         """A keyframe's points in its world frame: the map's positions of its landmarks, its
