@@ -135,6 +135,19 @@ def test_no_command_prints_help(capsys: pytest.CaptureFixture[str]) -> None:
     assert ei.value.code == 0
 
 
+def test_ctrl_c_while_the_commands_load_is_an_interrupt_not_a_traceback(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import eurocslam.cli as cli
+
+    def interrupted() -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert main(["run", "x"]) == 130
+    assert capsys.readouterr().err == "eurocslam: interrupted\n"
+
+
 def test_error_messages_are_folded_to_one_line(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -107,8 +107,12 @@ def main(argv: list[str] | None = None) -> int:
     interpreter freeing every object one by one: after `run` that is the run's maps, graphs and
     arrays (benchmarks/RESULTS.md, SLAM speed: 0.3-2 s of the whole process's time)."""
     _console_logging()
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:  # a Ctrl-C while the commands load (the first half second) is a Ctrl-C too
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:
+        print("eurocslam: interrupted", file=sys.stderr)
+        return 130
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
