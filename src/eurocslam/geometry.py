@@ -159,6 +159,17 @@ def extrapolate(Ta: F64, Tb: F64, s: float) -> F64:
     return Tb @ make_T(so3_exp(so3_log(d[:3, :3]) * s), d[:3, 3] * s)
 
 
+def extrapolate_last(poses: list[tuple[int, F64]], t: int) -> F64 | None:
+    """Pose at `t` extrapolated from the last two `(t_ns, T)` of `poses` (constant body-frame
+    twist); the last alone when it is the only one; None when there is none."""
+    if not poses:
+        return None
+    if len(poses) == 1 or poses[-1][0] <= poses[-2][0]:
+        return poses[-1][1]
+    (ta, Ta), (tb, Tb) = poses[-2:]
+    return extrapolate(Ta, Tb, (t - tb) / (tb - ta))
+
+
 def transform_points(T: F64, p: F64) -> F64:
     """Apply T (4x4) to points (N, 3)."""
     p = np.asarray(p, dtype=np.float64)

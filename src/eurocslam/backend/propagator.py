@@ -1,6 +1,8 @@
 """The state between keyframes, predicted from the latest keyframe's: IMU preintegration since
 that keyframe, or a constant velocity where there is none (visual-only, or across an IMU
-dropout). The preintegration is also what the next keyframe's IMU factor holds."""
+dropout). The preintegration is also what the next keyframe's IMU factor holds. A visual-only
+run's pose prediction comes from its last two output poses instead (`visual_pose`): without an
+IMU no velocity is estimated between keyframes."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ import numpy as np
 from eurocslam.backend.factors import ImuModel
 from eurocslam.backend.preintegration import bias, integrate
 from eurocslam.backend.types import NavEstimate
+from eurocslam.geometry import F64, extrapolate_last
 from eurocslam.timebase import ns_to_s
 
 
@@ -75,3 +78,11 @@ class Propagator:
             T[:3, 3] = T[:3, 3] + st.v_world * dt
             v = st.v_world
         return NavEstimate(t_ns, T, v, st.bg, st.ba)
+
+
+def visual_pose(recent: list[tuple[int, F64]], t_ns: int, T_keyframe: F64) -> F64:
+    """Visual-only: the pose at `t_ns` at constant body-frame twist from the segment's last two
+    output poses (`recent`, (t_ns, T_world_body)); before there are any, the latest keyframe's
+    `T_keyframe`."""
+    T = extrapolate_last(recent, t_ns)
+    return T_keyframe if T is None else T

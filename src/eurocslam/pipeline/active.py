@@ -14,11 +14,12 @@ import numpy as np
 
 from eurocslam.backend.estimator import KeyframeEstimator
 from eurocslam.backend.pose_graph import LoopEdge
+from eurocslam.backend.propagator import visual_pose
 from eurocslam.backend.types import EstimatorFailure, KeyframeUpdate, NavEstimate
 from eurocslam.geometry import F64
 from eurocslam.pipeline.places import LoopFix
 from eurocslam.pipeline.records import KeyframePath
-from eurocslam.pipeline.segments import FrameRecord, Segment, extrapolate_last
+from eurocslam.pipeline.segments import FrameRecord, Segment
 from eurocslam.pipeline.startup import Startup
 from eurocslam.places.loop_gate import yaw_and_translation
 from eurocslam.timebase import ns_to_s
@@ -44,8 +45,7 @@ class ActiveSegment:
         if inertial:
             return pred
         assert self.nav is not None
-        T_cv = extrapolate_last(recent, t_ns)
-        T_cv = self.nav.T_world_body if T_cv is None else T_cv
+        T_cv = visual_pose(recent, t_ns, self.nav.T_world_body)
         return NavEstimate(t_ns, T_cv, pred.v_world, pred.bg, pred.ba)
 
     def between(self, t_ns: int) -> F64:

@@ -104,17 +104,6 @@ def assemble(
     )
 
 
-def extrapolate_last(poses: list[tuple[int, F64]], t: int) -> F64 | None:
-    """Pose at `t` extrapolated from the last two `(t_ns, T)` of `poses` (constant body-frame
-    twist); the last alone when it is the only one; None when there is none."""
-    if not poses:
-        return None
-    if len(poses) == 1 or poses[-1][0] <= poses[-2][0]:
-        return poses[-1][1]
-    (ta, Ta), (tb, Tb) = poses[-2:]
-    return extrapolate(Ta, Tb, (t - tb) / (tb - ta))
-
-
 def interpolate_between(records: list[FrameRecord], a: tuple[int, F64], b: tuple[int, F64]) -> None:
     """Give the records strictly between two tracked poses `a` and `b` (time, pose; `b`'s record
     last) poses interpolated between them (constant body-frame twist)."""

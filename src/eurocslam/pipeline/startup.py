@@ -39,8 +39,8 @@ from eurocslam.dataset.types import ImuData
 from eurocslam.frontend.extraction import FrameFeatures
 from eurocslam.frontend.tracker import StereoTracker
 from eurocslam.frontend.types import FrontendResult
-from eurocslam.geometry import F64, make_T
-from eurocslam.pipeline.segments import FrameRecord, Segment, extrapolate_last, interpolate_between
+from eurocslam.geometry import F64, extrapolate_last, make_T
+from eurocslam.pipeline.segments import FrameRecord, Segment, interpolate_between
 from eurocslam.timebase import ns_to_s
 
 # an optical camera (x right, y down, z forward) held level, looking along world x (z up)
