@@ -10,7 +10,7 @@ from eurocslam.camera import bucket_select, project_rect, triangulate_rect
 from eurocslam.dataset.calib import default_rig
 from eurocslam.frontend.config import FrontendConfig
 from eurocslam.frontend.extraction import image_problem
-from eurocslam.frontend.features import Features, OrbExtractor, hamming
+from eurocslam.frontend.features import Features, OrbExtractor, hamming, hamming_pairs
 from eurocslam.frontend.local_map import LocalMap
 from eurocslam.frontend.pose_solver import optimize_pose, pnp_ransac
 from eurocslam.frontend.stereo import StereoRectifier, undistort_points
@@ -106,6 +106,26 @@ def test_hamming_matches_opencv() -> None:
     ours = hamming(a, b)
     ref = [cv2.norm(a[i], b[i], cv2.NORM_HAMMING) for i in range(50)]
     np.testing.assert_array_equal(ours, ref)
+    assert ours.dtype == np.int32
+
+
+def test_hamming_pairs_gathers_rows() -> None:
+    """`hamming_pairs(a, ia, b, ib)` is `hamming(a[ia], b[ib])`: the same int32 distances,
+    all-bits-different rows (256) and non-contiguous inputs included."""
+    rng = np.random.default_rng(5)
+    a = rng.integers(0, 256, size=(40, 32), dtype=np.uint8)
+    b = rng.integers(0, 256, size=(30, 32), dtype=np.uint8)
+    b[7] = ~a[3]  # every bit differs: a distance of 256, beyond a uint8 count
+    ia = rng.integers(0, 40, size=500)
+    ib = rng.integers(0, 30, size=500)
+    ia[0], ib[0] = 3, 7
+    ours = hamming_pairs(a, ia, b, ib)
+    np.testing.assert_array_equal(ours, hamming(a[ia], b[ib]))
+    assert ours.dtype == np.int32 and ours[0] == 256
+    wide = np.zeros((40, 64), np.uint8)
+    wide[:, ::2] = a  # a strided view: gathered as it is
+    np.testing.assert_array_equal(hamming_pairs(wide[:, ::2], ia, b, ib), ours)
+    assert hamming_pairs(a, ia[:0], b, ib[:0]).shape == (0,)
 
 
 def test_orb_extractor_count_and_blank_image() -> None:

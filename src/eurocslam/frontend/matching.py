@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from eurocslam.camera import RectifiedStereo
 from eurocslam.dataset.types import U8
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.features import Features, hamming
+from eurocslam.frontend.features import Features, hamming_pairs
 from eurocslam.frontend.projection import octave_sigma
 from eurocslam.geometry import F64
 
@@ -188,7 +188,7 @@ def match_stereo(
     li, rj = candidate_pairs(left, right, scale, config, geom)
     if li.size == 0:
         return StereoMatches(uR_out, depth, rindex)
-    dist = hamming(left.desc[li], right.desc[rj])
+    dist = hamming_pairs(left.desc, li, right.desc, rj)
     # best candidate per left keypoint
     best_pair = _first_per_group(li, dist)
     best_l = li[best_pair]

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from eurocslam.camera import RectifiedStereo
 from eurocslam.frontend.config import FrontendConfig
-from eurocslam.frontend.features import Features, hamming
+from eurocslam.frontend.features import Features, hamming_pairs
 from eurocslam.geometry import F64, inv_T, rigid
 
 if TYPE_CHECKING:  # the caller builds the tree: the extraction workers need no scipy
@@ -125,7 +125,7 @@ def search_by_projection(
         valid &= ~(np.abs(kp_uR - pred_uR) > radius[:, None])
     dist = np.full(valid.shape, _NO_MATCH, dtype=np.int32)
     vi, vj = np.nonzero(valid)
-    dist[vi, vj] = hamming(lm_desc[lm_rows[vi]], feats.desc[nn[vi, vj]])
+    dist[vi, vj] = hamming_pairs(lm_desc, lm_rows[vi], feats.desc, nn[vi, vj])
     order = np.argsort(dist, axis=1)
     r = np.arange(lm_rows.size)
     b = order[:, 0]
