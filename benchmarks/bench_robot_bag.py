@@ -18,6 +18,11 @@ the images the frontend would make from the raw ones).
 
 usage: .venv/bin/python benchmarks/bench_robot_bag.py ASL [--seconds 20] [--work DIR]
        [--variant NAME=SPEC ...] [--json OUT.json]
+       .venv/bin/python benchmarks/bench_robot_bag.py --summarize A.json B.json ...
+`--summarize` reads the `--json` files of runs on several folders (replicas, worlds) and prints
+per variant the ATE ratios bag / folder and their geometric mean with a 90 % t-interval: a
+single run's ratio moves by tens of percent under any sub-grey-level change of the images, so a
+rectification that differs is judged on the mean over many.
 Runs the code of the checkout the script is in (its src/ first on PYTHONPATH): to measure a
 commit while editing, run the script from a `git worktree` of that commit.
 """
@@ -80,7 +85,43 @@ def traj(run_dir: Path, which: str) -> np.ndarray:
     return np.loadtxt(run_dir / f"trajectory_{which}.csv", delimiter=",", comments="#")
 
 
+def summarize(files: list[Path]) -> int:
+    """Per variant over the `--json` files: ATE ratios bag / folder, final and online, and
+    their geometric means with a 90 % t-interval."""
+    from scipy.stats import t as student_t
+
+    logs: dict[str, dict[str, list[float]]] = {}
+    print("| folder | variant | final mm folder / bag | ratio | online mm folder / bag | ratio |")
+    print("|---|---|---|---|---|---|")
+    for f in files:
+        d = json.loads(f.read_text())
+        ref = d["rows"][0]
+        for row in d["rows"][1:]:
+            ratio = {w: row[w] / ref[w] for w in ("final", "online")}
+            for w, r in ratio.items():
+                logs.setdefault(row["variant"], {}).setdefault(w, []).append(float(np.log(r)))
+            print(f"| {Path(d['asl']).name} | {row['variant']} | {ref['final'] * 1e3:.2f} / "
+                  f"{row['final'] * 1e3:.2f} | {ratio['final']:.3f} | {ref['online'] * 1e3:.2f} "
+                  f"/ {row['online'] * 1e3:.2f} | {ratio['online']:.3f} |")  # fmt: skip
+    for name, by in logs.items():
+        parts = []
+        for w, x in by.items():
+            m = float(np.mean(x))
+            if len(x) > 1:
+                h = float(student_t.ppf(0.95, len(x) - 1) * np.std(x, ddof=1) / np.sqrt(len(x)))
+                parts.append(f"{w} x{np.exp(m):.3f} ({np.exp(m - h):.3f}-{np.exp(m + h):.3f})")
+            else:
+                parts.append(f"{w} x{np.exp(m):.3f}")
+        print(
+            f"{name}: geometric mean over {len(by['final'])} folders, 90 % t-interval: "
+            + ", ".join(parts)
+        )
+    return 0
+
+
 def main() -> int:
+    if len(sys.argv) > 1 and sys.argv[1] == "--summarize":
+        return summarize([Path(a) for a in sys.argv[2:]])
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("asl", type=Path)
     ap.add_argument("--seconds", type=float, default=20.0)
