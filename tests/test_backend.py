@@ -338,34 +338,6 @@ def test_stereo_noise_follows_the_keypoint_scale() -> None:
     assert sigmas == [round(1.2**k, 6) for k in range(4)]
 
 
-@pytest.mark.parametrize("fx, baseline", [(458.0, 0.11), (718.9, 0.54)])
-def test_point_covariance_is_the_triangulation_of_one_stereo_measurement(
-    fx: float, baseline: float
-) -> None:
-    """`StereoModel.point_covariance`: J J^T sigma^2 of the triangulation (checked against a
-    numeric Jacobian), a depth sigma of z^2 sigma sqrt(2) / (fx b) on the optical axis, lateral
-    sigmas z sigma / f; for EuRoC's 0.11 m rig and KITTI's 0.54 m one, near and far."""
-    from eurocslam.backend.factors import StereoModel
-    from eurocslam.camera import RectifiedStereo
-
-    geom = RectifiedStereo(fx, fx, 376.0, 240.0, baseline, 752, 480, np.eye(4))
-    model = StereoModel(geom, BackendConfig(stereo_sigma_px=1.0))
-
-    def point(m: np.ndarray) -> np.ndarray:
-        z = fx * baseline / (m[0] - m[1])
-        return np.array([(m[0] - 376.0) * z / fx, (m[2] - 240.0) * z / fx, z])
-
-    for z in (1.0, 8.0, 40.0):
-        for m in (np.array([376.0, 376.0 - fx * baseline / z, 240.0]),
-                  np.array([500.0, 500.0 - fx * baseline / z, 100.0])):  # fmt: skip
-            cov = model.point_covariance(*m, scale=1.2)
-            J = np.column_stack([(point(m + dm) - point(m - dm)) / 2e-6 for dm in np.eye(3) * 1e-6])
-            np.testing.assert_allclose(cov, J @ J.T * 1.2**2, rtol=1e-5, atol=1e-12)
-        on_axis = model.point_covariance(376.0, 376.0 - fx * baseline / z, 240.0, 1.0)
-        assert np.sqrt(on_axis[2, 2]) == pytest.approx(z * z * np.sqrt(2) / (fx * baseline))
-        assert np.sqrt(on_axis[0, 0]) == pytest.approx(z / fx)
-
-
 @pytest.mark.parametrize("mode", ["static", "dynamic"])
 def test_first_pose_prior_separates_tilt_from_yaw(mode: str) -> None:
     """The first pose's rotation prior has one sigma for yaw (the gauge) and one for roll and

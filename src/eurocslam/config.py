@@ -103,11 +103,6 @@ class BackendConfig:
     # smoothed position with this sigma (m; 0: not), so the online estimate returns to the map
     # it revisits instead of drifting away from it (benchmarks/RESULTS.md)
     refound_prior_sigma_m: float = 0.02
-    # how sure that anchor is: "fixed", `refound_prior_sigma_m` in every direction; "stereo",
-    # the stereo triangulation covariance of the observation that re-found it (the same pixel
-    # sigmas as its stereo factor: a far point's depth is held loosely, a near one's tightly;
-    # `refound_prior_sigma_m: 0` still turns the anchor off)
-    refound_prior_model: str = "fixed"
     # a pose found by place recognition (relocalization prior, loop edge): sigmas (rad, m)
     place_rot_sigma: float = limited(0.01, gt=0)
     place_pos_sigma: float = limited(0.02, gt=0)
@@ -241,7 +236,6 @@ _CHOICES = {
     "init.mode": ("auto", "static", "dynamic"),
     "init.visual_world": ("camera_level", "body"),
     "backend.smoother": ("fixed_lag", "isam2"),
-    "backend.refound_prior_model": ("fixed", "stereo"),
     "output.drone_model": ("auto", "firefly", "none"),
     "frontend.rectify_size": ("image", "focal"),
 }

@@ -148,12 +148,7 @@ class StereoObservations:
                 lms.pos[key_i] = Xw
                 n_new += 1
                 if anchor is not None and old is not None and lms.smoothed[old]:
-                    noise: gtsam.noiseModel.Base = anchor
-                    if b.refound_prior_model == "stereo":
-                        R = T_world_rect0[:3, :3]
-                        cov = self.stereo.point_covariance(uv[i, 0], uv[i, 1], uv[i, 2], scale[i])
-                        noise = gtsam.noiseModel.Gaussian.Covariance(R @ cov @ R.T)
-                    anchors.append(gtsam.PriorFactorPoint3(L(key_i), lms.pos[old], noise))
+                    anchors.append(gtsam.PriorFactorPoint3(L(key_i), lms.pos[old], anchor))
             stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
             obs = (uv[i, 0], uv[i, 1], uv[i, 2], float(scale[i]))
             gkey = int(lms.gkey[key_i])
