@@ -15,6 +15,7 @@ from eurocslam.io.layout import (
     dumps,
     framed,
     framing,
+    live_layout,
     run_layout,
     shipped_layouts,
     template,
@@ -289,6 +290,23 @@ def test_the_3d_panel_frames_a_60_m_drive() -> None:
     for topic in ("/slam/path", "/groundtruth/path"):
         assert three_d["topics"][topic]["lineWidth"] > room[topic]["lineWidth"]
     assert three_d["topics"]["/cam0/camera_info"]["distance"] > 1.0
+
+
+def test_the_live_layout_frames_every_heading_the_run_can_take() -> None:
+    """Before the run the world's heading is unknown: the live view's 3D panel is framed on the
+    disk the ground truth's reach spans about the origin (where the run starts), so the drive
+    is in view whichever way it turns; without ground truth, the template's framing."""
+    lay = live_layout(inertial=False, reach_m=60.0)
+    three_d = lay["configById"]["3D!map"]
+    assert three_d["cameraState"]["targetOffset"] == pytest.approx([0.0, 0.0, 0.0], abs=1e-3)
+    assert "/imu0" not in json.dumps(lay)  # visual-only panels
+    for heading in (0.0, 45.0, 135.0, 250.0):  # a 60 m straight drive, in any direction
+        a = np.radians(heading)
+        drive = np.outer(np.linspace(0.0, 60.0, 31), [np.cos(a), np.sin(a), 0.0])
+        uv = _project({**three_d["cameraState"], "thetaOffset": 30.0}, drive, aspect=0.8)
+        assert np.all(np.abs(uv) < 1.0), heading
+    assert live_layout(inertial=True, reach_m=None) == run_layout(inertial=True)
+    assert live_layout(inertial=True, reach_m=float("nan")) == run_layout(inertial=True)
 
 
 def test_a_room_keeps_the_drone_scale() -> None:

@@ -4,6 +4,7 @@ the final state until the viewer disconnects, then exits 0. Loopback only, bound
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -75,7 +76,13 @@ def test_run_live_streams_while_processing_and_writes_the_mcap(tmp_path: Path) -
             m = re.search(r"live view on (ws://localhost:\d+)", line)
             if m:
                 url = m.group(1)
+                layout = re.search(r"Import from file > (\S+layout\.json) \(this run's", line)
         assert url, "run --live did not print its URL"
+        # this run's layout, written before the run: its panels, framed on the ground truth
+        assert layout, line
+        lay = json.loads(Path(layout.group(1)).read_text())
+        assert lay["configById"]["3D!map"]["followMode"] == "follow-none"
+        assert (Path(layout.group(1)).parent / "layout-1.48.json").is_file()
         # stay until /slam/path_final (written at the very end) has come, and 3 s longer (the
         # server keeps the final state for the viewer), then disconnect: run exits
         seen: list[float] = []

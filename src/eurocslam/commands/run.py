@@ -78,7 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--live",
         action="store_true",
         help="also stream every run.mcap topic live while processing: open Foxglove and "
-        "connect to ws://localhost:PORT (layout: layouts/eurocslam.json)",
+        "connect to ws://localhost:PORT (the layout to import is printed at the start)",
     )
     live.add_argument("--port", type=int, help="live view port (default 8765; 0: any free port)")
     live.add_argument(
@@ -105,13 +105,36 @@ def _check_live_args(args: argparse.Namespace) -> None:
         raise EurocSlamError(f"--rate must be >= 0 (0 = as fast as possible), got {args.rate}")
 
 
-def _shipped_layout(inertial: bool) -> str:
-    return "eurocslam.json" if inertial else "eurocslam-visual.json"
+def _live_layout_hint(source, inertial: bool, images: str) -> str:  # type: ignore[no-untyped-def]
+    """Which layout the live view's viewer imports: this run's, written before the run into a
+    new temporary folder (the run's own outputs are committed at its end), with its panels
+    (visual-only without an IMU, the `--images` topics) and the 3D panel framed on as far as
+    the ground truth goes from its start; the shipped one where that cannot be written."""
+    import tempfile
+
+    import numpy as np
+
+    from eurocslam.io.layout import RUN_LAYOUT, live_layout, write_run_layouts
+
+    gt = source.groundtruth
+    reach = None
+    if gt is not None and len(gt):
+        p = np.asarray(gt.p, dtype=np.float64).reshape(-1, 3)
+        reach = float(np.nanmax(np.linalg.norm(p - p[0], axis=1)))
+    try:
+        folder = Path(tempfile.mkdtemp(prefix="eurocslam-live-"))
+        write_run_layouts(folder, live_layout(inertial=inertial, images=images, reach_m=reach))
+    except OSError:
+        shipped = "eurocslam.json" if inertial else "eurocslam-visual.json"
+        return f"layouts/{shipped} (shipped)"
+    framing = "its 3D view framed on the ground truth" if reach is not None else "its panels"
+    return f"{folder / RUN_LAYOUT} (this run's layout: {framing})"
 
 
-def _start_live(args: argparse.Namespace, inertial: bool):  # type: ignore[no-untyped-def]
+def _start_live(args: argparse.Namespace, inertial: bool, source):  # type: ignore[no-untyped-def]
     from eurocslam.io.live import DEFAULT_PORT, LiveSink
 
+    layout = _live_layout_hint(source, inertial, args.images)
     rate = 1.0 if args.rate is None else args.rate
 
     sink = LiveSink(
@@ -121,7 +144,7 @@ def _start_live(args: argparse.Namespace, inertial: bool):  # type: ignore[no-un
     )
     print(
         f"eurocslam run: live view on {sink.url} (Foxglove: Open connection > Foxglove "
-        f"WebSocket; layout: layouts/{_shipped_layout(inertial)})",
+        f"WebSocket; Layouts > Import from file > {layout})",
         file=sys.stderr,
         flush=True,
     )
@@ -169,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
             cfg = dataclasses.replace(cfg, mode=VISUAL_ONLY)
         source = open_sequence(args.sequence, **source_options(args, cfg.imu))
         cfg = resolve_mode(cfg, has_imu(source), source.name)
-        live_sink = _start_live(args, cfg.inertial) if args.live else None
+        live_sink = _start_live(args, cfg.inertial, source) if args.live else None
         return _run(args, cfg, source, live_sink)
     finally:  # also on Ctrl-C (the CLI reports it, exit 130) and on errors
         discard_early()  # workers started early that no extraction took

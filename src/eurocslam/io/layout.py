@@ -224,6 +224,18 @@ def run_layout(*, inertial: bool, images: str = "raw", points: np.ndarray | None
     return out
 
 
+def live_layout(*, inertial: bool, images: str = "raw", reach_m: float | None = None) -> Layout:
+    """The layout of a live view, written before the run: `run_layout`'s panels, and the 3D panel
+    framed on a disk of radius `reach_m` about the world's origin, where the run starts (the
+    farthest its ground truth goes from its first position: the heading the run will give the
+    world is not known yet, so the disk every heading fits in). None: the template's framing."""
+    if reach_m is None or not math.isfinite(reach_m):
+        return run_layout(inertial=inertial, images=images)
+    r = max(float(reach_m), MIN_RADIUS_M)
+    disk = np.array([[r, 0.0, 0.0], [-r, 0.0, 0.0], [0.0, r, 0.0], [0.0, -r, 0.0]])
+    return run_layout(inertial=inertial, images=images, points=disk)
+
+
 def dumps(layout: Layout) -> str:
     return json.dumps(layout, indent=2) + "\n"
 

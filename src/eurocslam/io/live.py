@@ -5,7 +5,8 @@ the message on a channel of a foxglove-sdk WebSocket server, paced so that data 
 `rate` x wall time (`rate=None` or `0`: as fast as possible; `io.pacing.PacingClock`).
 `eurocslam run SEQ --live` tees it with the MCAP sink; `eurocslam play RUN.mcap --live` feeds it
 from a recorded file (`io.playback.play_mcap`). A user opens Foxglove, connects to
-`ws://localhost:8765` and uses the same layout as for the recorded file (`layouts/eurocslam.json`).
+`ws://localhost:8765` and imports the layout `run --live` prints (this run's panels, framed on its
+ground truth's reach) or, for `play`, the shipped one (`layouts/eurocslam.json`).
 
 - Two protocol names, one protocol: the SDK server listens on an ephemeral loopback port behind
   `io.live_relay.Relay`, which listens on the user's port and accepts both subprotocol names, so
