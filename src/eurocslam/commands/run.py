@@ -120,7 +120,8 @@ def _live_layout_hint(source, inertial: bool, images: str) -> str:  # type: igno
     reach = None
     if gt is not None and len(gt):
         p = np.asarray(gt.p, dtype=np.float64).reshape(-1, 3)
-        reach = float(np.nanmax(np.linalg.norm(p - p[0], axis=1)))
+        d = np.linalg.norm(p - p[0], axis=1)
+        reach = float(d[np.isfinite(d)].max()) if np.isfinite(d).any() else None
     try:
         folder = Path(tempfile.mkdtemp(prefix="eurocslam-live-"))
         write_run_layouts(folder, live_layout(inertial=inertial, images=images, reach_m=reach))
