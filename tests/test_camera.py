@@ -165,6 +165,30 @@ def test_sigma_scale_is_the_resampling_stretch() -> None:
     assert wide.sigma_scale(pts[:1])[0] == 1.0  # downsampled centre: a rectified pixel
 
 
+def test_keypoint_sigma_is_the_octave_with_the_stretch_in_quadrature() -> None:
+    """A rectified keypoint's sigma: its octave scale where the rectification does not stretch
+    (every pinhole rig: EuRoC's weights are the octave scales, bit for bit), and the stretch s
+    only in quadrature, sqrt(octave^2 + (s^2 - 1) / 3), on a fisheye: not octave x s."""
+    from eurocslam.frontend.stereo import RESAMPLING_SIGMA
+
+    octave = 1.2 ** np.arange(4, dtype=np.float64)
+    uv = np.array([[10.0, 10.0], [300.0, 200.0], [376.0, 240.0], [700.0, 470.0]])
+    euroc = StereoRectifier(default_rig())
+    assert euroc.keypoint_sigma(octave, uv).tolist() == octave.tolist()
+    r = StereoRectifier(tumvi_rig(), 0.0, 120.0)
+    pts = np.array([[255.5, 255.5], [100.0, 255.5], [20.0, 255.5], [5.0, 5.0]])
+    s = r.sigma_scale(pts)
+    assert s[0] == 1.0 and s[2] > 1.8 and s[3] > 2.8  # centre downsampled; edges stretched
+    sig = r.keypoint_sigma(np.ones(4), pts)
+    assert sig[0] == 1.0  # no stretch: the octave scale
+    np.testing.assert_allclose(sig, np.sqrt(1.0 + RESAMPLING_SIGMA**2 * (s * s - 1.0)))
+    assert np.all(sig <= s) and sig[3] < 0.7 * s[3]  # below the old octave x stretch
+    # a coarse octave already locates the keypoint coarser than the raw pixel: the stretch
+    # adds little to it
+    coarse = r.keypoint_sigma(np.full(4, 1.2**5), pts)
+    assert np.all(coarse >= 1.2**5) and coarse[2] < 1.07 * 1.2**5
+
+
 def test_fov_zero_keeps_the_centres_focal_length() -> None:
     from eurocslam.camera import centre_keeping_fov_deg
 

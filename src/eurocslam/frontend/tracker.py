@@ -486,8 +486,9 @@ class StereoTracker:
             stereo_sigma=(
                 np.zeros(0)
                 if obs_kps is None
-                else octave_sigma(self.scale, ff.left.octave[obs_kps])
-                * self._rectifier.sigma_scale(ff.left.uv[obs_kps])  # a fisheye's resampling
+                else self._rectifier.keypoint_sigma(  # with a fisheye's resampling
+                    octave_sigma(self.scale, ff.left.octave[obs_kps]), ff.left.uv[obs_kps]
+                )
             ),
             descriptors=(np.zeros((0, 32), np.uint8) if obs_kps is None else ff.left.desc[obs_kps]),
             octaves=np.zeros(0, np.int32) if obs_kps is None else ff.left.octave[obs_kps],
