@@ -449,6 +449,11 @@ class StereoTracker:
                 return True
         return False
 
+    def _keypoint_sigma(self, ff: FrameFeatures, kps: NDArray[np.intp]) -> F64:
+        """Keypoints' pixel sigmas: the octave scale, with a fisheye's resampling stretch."""
+        octave = octave_sigma(self.scale, ff.left.octave[kps])
+        return self._rectifier.keypoint_sigma(octave, ff.left.uv[kps])
+
     def _result(
         self,
         ff: FrameFeatures,
@@ -483,13 +488,7 @@ class StereoTracker:
             draw_uv=draw,
             draw_tracked=tracked if tracked is not None else np.zeros(len(ff.left), dtype=bool),
             timings_ms=timings,
-            stereo_sigma=(
-                np.zeros(0)
-                if obs_kps is None
-                else self._rectifier.keypoint_sigma(  # with a fisheye's resampling
-                    octave_sigma(self.scale, ff.left.octave[obs_kps]), ff.left.uv[obs_kps]
-                )
-            ),
+            stereo_sigma=np.zeros(0) if obs_kps is None else self._keypoint_sigma(ff, obs_kps),
             descriptors=(np.zeros((0, 32), np.uint8) if obs_kps is None else ff.left.desc[obs_kps]),
             octaves=np.zeros(0, np.int32) if obs_kps is None else ff.left.octave[obs_kps],
         )
