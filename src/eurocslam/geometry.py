@@ -177,8 +177,8 @@ def transform_points(T: F64, p: F64) -> F64:
 
 
 def skew(v: F64) -> F64:
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    x, y, z = np.asarray(v, dtype=np.float64).reshape(3).tolist()  # Python floats: no per-
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])  # element numpy scalars
 
 
 def so3_exp(w: F64) -> F64:
@@ -188,8 +188,7 @@ def so3_exp(w: F64) -> F64:
     th = math.sqrt(float(flat.dot(flat)))  # np.linalg.norm's own arithmetic, without its wrapper
     if th < 1e-12:
         return np.eye(3) + skew(w)
-    x, y, z = (w / th).tolist()
-    k = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])  # skew(w / th)
+    k = skew(w / th)
     return cast(F64, _I3 + np.sin(th) * k + (1 - np.cos(th)) * (k @ k))
 
 

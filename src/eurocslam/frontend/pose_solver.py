@@ -18,7 +18,9 @@ from numpy.typing import NDArray
 from eurocslam.camera import RectifiedStereo
 from eurocslam.geometry import F64, make_T, rigid, so3_exp
 
-_SOLVE1 = np.linalg._umath_linalg.solve1  # what np.linalg.solve runs for a vector b
+# what np.linalg.solve runs for a vector b (a private numpy module: where a numpy version lacks
+# it, `_solve6` is `np.linalg.solve` itself, the same numbers)
+_SOLVE1 = getattr(getattr(np.linalg, "_umath_linalg", None), "solve1", None)
 
 CHI2_STEREO_95 = 7.815  # chi-square 95 %, 3 dof: a stereo measurement (u, uR, v) in sigmas
 CHI2_MONO_95 = 5.991  # 2 dof: a mono one (u, v)
@@ -36,6 +38,8 @@ def _solve6(H: F64, g: F64) -> F64:
     """`np.linalg.solve(H, g)` for a float64 (6, 6) and (6,): the same LAPACK gufunc under the
     same error state, without the wrapper's checks and conversions (a call per Gauss-Newton
     iteration of every pose solve)."""
+    if _SOLVE1 is None:
+        return np.asarray(np.linalg.solve(H, g), dtype=np.float64)
     with np.errstate(
         call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore"
     ):

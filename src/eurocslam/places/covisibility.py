@@ -18,6 +18,8 @@ from eurocslam.places.recognizer import PlaceRecognizer, PlaceView
 
 COVISIBLE_LOOKBACK = 10
 COVISIBLE_MIN_SHARED = 15
+# landmark sets kept: a query's neighbours and the query (older ones are made again if asked)
+_KEPT = 2 * COVISIBLE_LOOKBACK
 
 
 def n_shared(a: NDArray[np.int64], b: NDArray[np.int64]) -> int:
@@ -49,11 +51,13 @@ class Covisibility:
         return floor if floor != float("inf") else 0.0
 
     def landmark_set(self, view: PlaceView) -> NDArray[np.int64]:
-        """The landmarks a view observes, sorted and unique (kept per keyframe: each is one of
-        the next `COVISIBLE_LOOKBACK` queries' neighbours)."""
+        """The landmarks a view observes, sorted and unique (kept for the latest `_KEPT`
+        keyframes: each is one of the next `COVISIBLE_LOOKBACK` queries' neighbours)."""
         s = self._sets.get(view.key)
         if s is None:
             s = np.unique(view.landmark_ids[view.landmark_ids >= 0])
             if view.key >= 0:
                 self._sets[view.key] = s
+                if len(self._sets) > _KEPT:  # the oldest filed: no longer anyone's neighbour
+                    del self._sets[next(iter(self._sets))]
         return s
