@@ -338,6 +338,49 @@ def test_stereo_noise_follows_the_keypoint_scale() -> None:
     assert sigmas == [round(1.2**k, 6) for k in range(4)]
 
 
+@pytest.mark.parametrize("huber", [False, True])
+def test_refound_landmark_anchor_pulls_a_far_outlier_with_a_bounded_force(huber: bool) -> None:
+    """A landmark the smoother let go and the tracker re-found gets a prior at its last smoothed
+    position (`StereoAdded.anchors`), `refound_prior_sigma_m` in every direction. Plain, a
+    re-finding 1 m away costs (r / sigma)^2 / 2 like any Gaussian; with `refound_prior_huber`
+    the cost grows linearly beyond `huber_k` sigmas (Huber), so a wrong re-find or a landmark
+    mapped in an uncertain frame cannot drag the estimate, while one within a sigma costs the
+    same as before."""
+    from gtsam.symbol_shorthand import L
+
+    from eurocslam.backend.factors import StereoModel
+    from eurocslam.backend.observations import StereoObservations
+    from eurocslam.camera import RectifiedStereo
+
+    fx, b, z = 458.0, 0.11, 5.0
+    geom = RectifiedStereo(fx, fx, 376.0, 240.0, b, 752, 480, np.eye(4))
+    cfg = BackendConfig(refound_prior_huber=huber)
+    lms = LandmarkKeys()
+    old = lms.new_key(7, 0)
+    lms.set_window(np.array([old]), np.array([[0.0, 0.0, z]]))
+    lms.set_window(np.zeros(0, np.int64), np.zeros((0, 3)))  # let go: smoothed, not active
+    obs = StereoObservations(cfg, True, StereoModel(geom, cfg), lms)
+    uv = np.array([[376.0, 376.0 - fx * b / z, 240.0]])
+    added = obs.add(3, np.eye(4), np.array([7]), uv, None, 1.0)
+    assert len(added.anchors) == 1 and len(added.new_points) == 1
+    (factor,) = added.anchors
+    key = added.new_points[0][0]
+    assert factor.keys() == [key] and key != L(old)
+
+    def cost(offset: np.ndarray) -> float:
+        v = gtsam.Values()
+        v.insert(key, np.array([0.0, 0.0, z]) + offset)
+        return float(factor.error(v))
+
+    sigma, k = cfg.refound_prior_sigma_m, cfg.huber_k
+    for axis in np.eye(3):  # half a sigma: Gaussian either way
+        assert cost(0.5 * sigma * axis) == pytest.approx(0.125, rel=1e-6)
+    m = 1.0 / sigma  # 1 m: 50 sigmas
+    expected = k * m - 0.5 * k * k if huber else 0.5 * m * m
+    assert cost(np.array([1.0, 0.0, 0.0])) == pytest.approx(expected, rel=1e-6)
+    assert cost(np.array([0.0, 0.0, -1.0])) == pytest.approx(expected, rel=1e-6)
+
+
 @pytest.mark.parametrize("mode", ["static", "dynamic"])
 def test_first_pose_prior_separates_tilt_from_yaw(mode: str) -> None:
     """The first pose's rotation prior has one sigma for yaw (the gauge) and one for roll and

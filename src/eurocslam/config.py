@@ -103,6 +103,11 @@ class BackendConfig:
     # smoothed position with this sigma (m; 0: not), so the online estimate returns to the map
     # it revisits instead of drifting away from it (benchmarks/RESULTS.md)
     refound_prior_sigma_m: float = 0.02
+    # that anchor as a robust measurement (Huber at `huber_k` sigmas, as the stereo factors): a
+    # re-found landmark far from where it was archived (a wrong match, a far point's depth, a
+    # landmark mapped before the estimate's tilt settled) pulls with a bounded force, not a
+    # quadratic one
+    refound_prior_huber: bool = False
     # a pose found by place recognition (relocalization prior, loop edge): sigmas (rad, m)
     place_rot_sigma: float = limited(0.01, gt=0)
     place_pos_sigma: float = limited(0.02, gt=0)

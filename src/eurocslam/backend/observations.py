@@ -82,13 +82,15 @@ class StereoObservations:
         )
         # a landmark the smoother let go and the tracker re-found (map reuse) is anchored at its
         # last smoothed position: the online estimate stays in the frame of the map it returns
-        # to instead of drifting away from it. The smoother alone takes these priors; the final
-        # batch has the landmark's observations then and now on one variable instead
-        anchor = (
-            gtsam.noiseModel.Isotropic.Sigma(3, b.refound_prior_sigma_m)
-            if b.refound_prior_sigma_m > 0
-            else None
-        )
+        # to instead of drifting away from it (robust with `refound_prior_huber`). The smoother
+        # alone takes these priors; the final batch has the landmark's observations then and now
+        # on one variable instead
+        anchor: gtsam.noiseModel.Base | None = None
+        if b.refound_prior_sigma_m > 0:
+            anchor = gtsam.noiseModel.Isotropic.Sigma(3, b.refound_prior_sigma_m)
+            if b.refound_prior_huber:
+                huber = gtsam.noiseModel.mEstimator.Huber.Create(b.huber_k)
+                anchor = gtsam.noiseModel.Robust.Create(huber, anchor)
         anchors: list[gtsam.NonlinearFactor] = []
         disp = uv[:, 0] - uv[:, 1]
         ok = np.isfinite(uv).all(axis=1) & (disp >= b.min_disparity_px)
