@@ -381,6 +381,68 @@ def test_refound_landmark_anchor_pulls_a_far_outlier_with_a_bounded_force(huber:
     assert cost(np.array([0.0, 0.0, -1.0])) == pytest.approx(expected, rel=1e-6)
 
 
+@pytest.mark.parametrize(
+    "z, offset, kept",
+    [
+        (5.0, (0.01, 0.0, 0.0), True),  # within the anchor's 2 cm
+        (5.0, (0.3, 0.0, 0.0), False),  # 30 cm across the ray at 5 m: 4 px, refused
+        (5.0, (0.0, 0.0, 0.5), True),  # along the ray: the stereo depth's sigma is 0.70 m at 5 m
+        (2.0, (0.0, 0.0, 0.5), False),  # ... and 0.11 m at 2 m
+    ],
+)
+def test_refound_anchor_gate_refuses_what_the_stereo_point_contradicts(
+    z: float, offset: tuple[float, float, float], kept: bool
+) -> None:
+    """`refound_prior_gate_chi2`: a re-found landmark is anchored only where its archived
+    position and the re-finding stereo point agree within the anchor's sigma and the stereo
+    triangulation's covariance (depth loose far away, tight near), chi-square 3 DoF."""
+    from eurocslam.backend.factors import StereoModel
+    from eurocslam.backend.observations import StereoObservations
+    from eurocslam.camera import RectifiedStereo
+
+    fx, b = 458.0, 0.11
+    geom = RectifiedStereo(fx, fx, 376.0, 240.0, b, 752, 480, np.eye(4))
+    for chi2, expect in ((0.0, True), (11.34, kept)):
+        cfg = BackendConfig(refound_prior_gate_chi2=chi2)
+        lms = LandmarkKeys()
+        old = lms.new_key(7, 0)
+        lms.set_window(np.array([old]), np.array([[0.0, 0.0, z]]) + np.array(offset))
+        lms.set_window(np.zeros(0, np.int64), np.zeros((0, 3)))
+        obs = StereoObservations(cfg, True, StereoModel(geom, cfg), lms)
+        uv = np.array([[376.0, 376.0 - fx * b / z, 240.0]])
+        added = obs.add(3, np.eye(4), np.array([7]), uv, None, 1.0)
+        assert len(added.new_points) == 1  # re-keyed either way
+        assert len(added.anchors) == int(expect), (chi2, z, offset)
+
+
+@pytest.mark.parametrize("fx, baseline", [(458.0, 0.11), (718.9, 0.54)])
+def test_point_covariance_is_the_triangulation_of_one_stereo_measurement(
+    fx: float, baseline: float
+) -> None:
+    """`StereoModel.point_covariance`: J J^T sigma^2 of the triangulation (checked against a
+    numeric Jacobian), a depth sigma of z^2 sigma sqrt(2) / (fx b) on the optical axis, lateral
+    sigmas z sigma / f; for EuRoC's 0.11 m rig and KITTI's 0.54 m one, near and far."""
+    from eurocslam.backend.factors import StereoModel
+    from eurocslam.camera import RectifiedStereo
+
+    geom = RectifiedStereo(fx, fx, 376.0, 240.0, baseline, 752, 480, np.eye(4))
+    model = StereoModel(geom, BackendConfig(stereo_sigma_px=1.0))
+
+    def point(m: np.ndarray) -> np.ndarray:
+        z = fx * baseline / (m[0] - m[1])
+        return np.array([(m[0] - 376.0) * z / fx, (m[2] - 240.0) * z / fx, z])
+
+    for z in (1.0, 8.0, 40.0):
+        for m in (np.array([376.0, 376.0 - fx * baseline / z, 240.0]),
+                  np.array([500.0, 500.0 - fx * baseline / z, 100.0])):  # fmt: skip
+            cov = model.point_covariance(*m, scale=1.2)
+            J = np.column_stack([(point(m + dm) - point(m - dm)) / 2e-6 for dm in np.eye(3) * 1e-6])
+            np.testing.assert_allclose(cov, J @ J.T * 1.2**2, rtol=1e-5, atol=1e-12)
+        on_axis = model.point_covariance(376.0, 376.0 - fx * baseline / z, 240.0, 1.0)
+        assert np.sqrt(on_axis[2, 2]) == pytest.approx(z * z * np.sqrt(2) / (fx * baseline))
+        assert np.sqrt(on_axis[0, 0]) == pytest.approx(z / fx)
+
+
 @pytest.mark.parametrize("mode", ["static", "dynamic"])
 def test_first_pose_prior_separates_tilt_from_yaw(mode: str) -> None:
     """The first pose's rotation prior has one sigma for yaw (the gauge) and one for roll and

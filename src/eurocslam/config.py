@@ -108,6 +108,10 @@ class BackendConfig:
     # landmark mapped before the estimate's tilt settled) pulls with a bounded force, not a
     # quadratic one
     refound_prior_huber: bool = False
+    # an anchor only where the archived position and the re-finding stereo point agree within
+    # their covariances (the anchor's sigma and the stereo triangulation's), chi-square 3 DoF
+    # (11.34: 99 %; 0: always), as a loop must agree with the estimator's
+    refound_prior_gate_chi2: float = limited(0.0, ge=0)
     # a pose found by place recognition (relocalization prior, loop edge): sigmas (rad, m)
     place_rot_sigma: float = limited(0.01, gt=0)
     place_pos_sigma: float = limited(0.02, gt=0)

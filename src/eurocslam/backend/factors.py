@@ -44,6 +44,26 @@ class StereoModel:
             self._noises[scale] = m
         return m
 
+    def point_covariance(self, uL: float, uR: float, v: float, scale: float) -> F64:
+        """The covariance (3, 3) in rect0 of the point triangulated from one stereo measurement
+        (uL, uR, v) with this model's pixel sigma (`stereo_sigma_px` x `scale`, each of uL, uR,
+        v): J J^T sigma^2 with J the triangulation's Jacobian. Its depth sigma is
+        z^2 sigma sqrt(2) / (fx b), its lateral ones z sigma / f."""
+        g = self.geometry
+        d = uL - uR
+        z = g.fx * g.baseline / d
+        x = (uL - g.cx) * z / g.fx
+        y = (v - g.cy) * z / g.fy
+        J = np.array(  # d(x, y, z) / d(uL, uR, v)
+            [
+                [z / g.fx - x / d, x / d, 0.0],
+                [-y / d, y / d, z / g.fy],
+                [-z / d, z / d, 0.0],
+            ]
+        )
+        sigma = self._cfg.stereo_sigma_px * max(scale, 1e-3)
+        return np.asarray(J @ J.T * sigma * sigma, dtype=np.float64)
+
     def factor(
         self, k: int, landmark_key: int, uL: float, uR: float, v: float, scale: float
     ) -> gtsam.GenericStereoFactor3D:

@@ -149,7 +149,12 @@ class StereoObservations:
                 new_points.append((L(key_i), Xw))
                 lms.pos[key_i] = Xw
                 n_new += 1
-                if anchor is not None and old is not None and lms.smoothed[old]:
+                if (
+                    anchor is not None
+                    and old is not None
+                    and lms.smoothed[old]
+                    and self._anchor_agrees(lms.pos[old], Xw, uv[i], float(scale[i]), T_world_rect0)
+                ):
                     anchors.append(gtsam.PriorFactorPoint3(L(key_i), lms.pos[old], anchor))
             stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
             obs = (uv[i, 0], uv[i, 1], uv[i, 2], float(scale[i]))
@@ -171,3 +176,19 @@ class StereoObservations:
             lms.nobs[gkey] += 1
             final_only.append((k, gkey, uv[i, 0], uv[i, 1], uv[i, 2], scale[i]))
         return StereoAdded(factors, new_points, stamps, subst, anchors, final_only, n_new)
+
+    def _anchor_agrees(
+        self, p_old: F64, p_new: F64, uv: F64, scale: float, T_world_rect0: F64
+    ) -> bool:
+        """`refound_prior_gate_chi2` (0: every anchor): the archived position `p_old` and the
+        re-finding stereo point's `p_new` (world) agree within the anchor's sigma and the stereo
+        triangulation's covariance (chi-square, 3 DoF), as a loop must agree with the
+        estimator's uncertainty before it moves the estimate."""
+        b = self.cfg
+        if b.refound_prior_gate_chi2 <= 0:
+            return True
+        R = T_world_rect0[:3, :3]
+        cov = R @ self.stereo.point_covariance(uv[0], uv[1], uv[2], scale) @ R.T
+        cov = cov + b.refound_prior_sigma_m**2 * np.eye(3)
+        d = np.asarray(p_old, dtype=np.float64) - p_new
+        return bool(d @ np.linalg.solve(cov, d) <= b.refound_prior_gate_chi2)
