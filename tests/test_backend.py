@@ -18,6 +18,7 @@ from eurocslam.backend.initializer import (
     stillness,
 )
 from eurocslam.backend.landmarks import LandmarkKeys
+from eurocslam.backend.observations import StereoAdded
 from eurocslam.backend.preintegration import gap_in, integrate, make_params
 from eurocslam.backend.simulate import (
     euroc_like_stereo,
@@ -338,6 +339,24 @@ def test_stereo_noise_follows_the_keypoint_scale() -> None:
     assert sigmas == [round(1.2**k, 6) for k in range(4)]
 
 
+def _refound(cfg: BackendConfig, z: float, archived_offset: np.ndarray) -> StereoAdded:
+    """Landmark 7 archived at (0, 0, z) + `archived_offset` (smoothed, then let go), re-found
+    by keyframe 3 at the identity pose as a stereo point at (0, 0, z) on EuRoC's rig."""
+    from eurocslam.backend.factors import StereoModel
+    from eurocslam.backend.observations import StereoObservations
+    from eurocslam.camera import RectifiedStereo
+
+    fx, b = 458.0, 0.11
+    geom = RectifiedStereo(fx, fx, 376.0, 240.0, b, 752, 480, np.eye(4))
+    lms = LandmarkKeys()
+    old = lms.new_key(7, 0)
+    lms.set_window(np.array([old]), np.array([[0.0, 0.0, z]]) + archived_offset)
+    lms.set_window(np.zeros(0, np.int64), np.zeros((0, 3)))  # let go: smoothed, not active
+    obs = StereoObservations(cfg, True, StereoModel(geom, cfg), lms)
+    uv = np.array([[376.0, 376.0 - fx * b / z, 240.0]])
+    return obs.add(3, np.eye(4), np.array([7]), uv, None, 1.0)
+
+
 @pytest.mark.parametrize("huber", [False, True])
 def test_refound_landmark_anchor_pulls_a_far_outlier_with_a_bounded_force(huber: bool) -> None:
     """A landmark the smoother let go and the tracker re-found gets a prior at its last smoothed
@@ -348,24 +367,13 @@ def test_refound_landmark_anchor_pulls_a_far_outlier_with_a_bounded_force(huber:
     same as before."""
     from gtsam.symbol_shorthand import L
 
-    from eurocslam.backend.factors import StereoModel
-    from eurocslam.backend.observations import StereoObservations
-    from eurocslam.camera import RectifiedStereo
-
-    fx, b, z = 458.0, 0.11, 5.0
-    geom = RectifiedStereo(fx, fx, 376.0, 240.0, b, 752, 480, np.eye(4))
+    z = 5.0
     cfg = BackendConfig(refound_prior_huber=huber)
-    lms = LandmarkKeys()
-    old = lms.new_key(7, 0)
-    lms.set_window(np.array([old]), np.array([[0.0, 0.0, z]]))
-    lms.set_window(np.zeros(0, np.int64), np.zeros((0, 3)))  # let go: smoothed, not active
-    obs = StereoObservations(cfg, True, StereoModel(geom, cfg), lms)
-    uv = np.array([[376.0, 376.0 - fx * b / z, 240.0]])
-    added = obs.add(3, np.eye(4), np.array([7]), uv, None, 1.0)
+    added = _refound(cfg, z, np.zeros(3))
     assert len(added.anchors) == 1 and len(added.new_points) == 1
     (factor,) = added.anchors
     key = added.new_points[0][0]
-    assert factor.keys() == [key] and key != L(old)
+    assert factor.keys() == [key] and key != L(0)  # a new key; the archived one was 0
 
     def cost(offset: np.ndarray) -> float:
         v = gtsam.Values()
@@ -396,21 +404,8 @@ def test_refound_anchor_gate_refuses_what_the_stereo_point_contradicts(
     """`refound_prior_gate_chi2`: a re-found landmark is anchored only where its archived
     position and the re-finding stereo point agree within the anchor's sigma and the stereo
     triangulation's covariance (depth loose far away, tight near), chi-square 3 DoF."""
-    from eurocslam.backend.factors import StereoModel
-    from eurocslam.backend.observations import StereoObservations
-    from eurocslam.camera import RectifiedStereo
-
-    fx, b = 458.0, 0.11
-    geom = RectifiedStereo(fx, fx, 376.0, 240.0, b, 752, 480, np.eye(4))
     for chi2, expect in ((0.0, True), (11.34, kept)):
-        cfg = BackendConfig(refound_prior_gate_chi2=chi2)
-        lms = LandmarkKeys()
-        old = lms.new_key(7, 0)
-        lms.set_window(np.array([old]), np.array([[0.0, 0.0, z]]) + np.array(offset))
-        lms.set_window(np.zeros(0, np.int64), np.zeros((0, 3)))
-        obs = StereoObservations(cfg, True, StereoModel(geom, cfg), lms)
-        uv = np.array([[376.0, 376.0 - fx * b / z, 240.0]])
-        added = obs.add(3, np.eye(4), np.array([7]), uv, None, 1.0)
+        added = _refound(BackendConfig(refound_prior_gate_chi2=chi2), z, np.array(offset))
         assert len(added.new_points) == 1  # re-keyed either way
         assert len(added.anchors) == int(expect), (chi2, z, offset)
 

@@ -19,6 +19,11 @@ def pose(T: F64) -> gtsam.Pose3:
     return gtsam.Pose3(np.asarray(T, dtype=np.float64))
 
 
+def huber(base: gtsam.noiseModel.Base, k: float) -> gtsam.noiseModel.Base:
+    """`base` made robust: Huber, quadratic within `k` sigmas, linear beyond."""
+    return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k), base)
+
+
 class StereoModel:
     """`GenericStereoFactor3D(X(k), L(j))` of (uL, uR, v) rectified measurements, with
     `body_P_sensor = T_body_rect0` and a Huber-robust isotropic noise of `stereo_sigma_px` times
@@ -38,9 +43,7 @@ class StereoModel:
         if m is None:
             b = self._cfg
             base = gtsam.noiseModel.Isotropic.Sigma(3, b.stereo_sigma_px * max(scale, 1e-3))
-            m = gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Huber.Create(b.huber_k), base
-            )
+            m = huber(base, b.huber_k)
             self._noises[scale] = m
         return m
 

@@ -16,7 +16,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L
 
-from eurocslam.backend.factors import StereoModel
+from eurocslam.backend.factors import StereoModel, huber
 from eurocslam.backend.landmarks import LandmarkKeys
 from eurocslam.camera import bucket_select
 from eurocslam.config import BackendConfig
@@ -89,8 +89,7 @@ class StereoObservations:
         if b.refound_prior_sigma_m > 0:
             anchor = gtsam.noiseModel.Isotropic.Sigma(3, b.refound_prior_sigma_m)
             if b.refound_prior_huber:
-                huber = gtsam.noiseModel.mEstimator.Huber.Create(b.huber_k)
-                anchor = gtsam.noiseModel.Robust.Create(huber, anchor)
+                anchor = huber(anchor, b.huber_k)
         anchors: list[gtsam.NonlinearFactor] = []
         disp = uv[:, 0] - uv[:, 1]
         ok = np.isfinite(uv).all(axis=1) & (disp >= b.min_disparity_px)
