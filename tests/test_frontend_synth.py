@@ -129,6 +129,26 @@ def test_archived_landmarks_are_re_found_where_they_were(tiny_sequence: Path) ->
     assert q_re[0] < 1.5 and q_re[1] < 4.0, (q_re, q_tr)
 
 
+def test_the_reuse_window_is_at_least_its_pixel_floor(tiny_sequence: Path) -> None:
+    """Map reuse's search window is the larger of an angle (x fx) and `reuse_radius_min_px`:
+    with the angle made negligible (0.01 deg: 0.08 px here) almost nothing is re-found; the
+    floor at the pixels the default angle gives this rig brings every re-found landmark back
+    (what a short-focal fisheye gets from the floor)."""
+    seq = open_sequence(tiny_sequence)
+    frames = list(seq.frames())
+    fx = Frontend(seq.rig).extractor.geometry.fx
+    default_px = fx * np.radians(FrontendConfig().reuse_radius_deg)
+
+    def n_reused(**reuse: float) -> int:
+        fe = Frontend(seq.rig, FrontendConfig(landmark_max_unseen_s=0.1, **reuse))  # type: ignore[arg-type]
+        return sum(fe.process(f).n_reused for f in frames)
+
+    full = n_reused()
+    assert full > 50
+    assert n_reused(reuse_radius_deg=0.01) < 0.1 * full
+    assert n_reused(reuse_radius_deg=0.01, reuse_radius_min_px=default_px) == full
+
+
 def test_a_pose_below_the_callers_bar_leaves_the_tracker_as_it_was(tiny_sequence: Path) -> None:
     """A frame tracked without a prior whose inliers stay under the caller's `min_inliers` is
     LOST, and nothing of it stays in the tracker: no landmarks, no pose, no motion. (On a

@@ -99,8 +99,12 @@ class FrontendConfig:
     reuse_map: bool = True
     archive_min_found: int = 3
     archive_max_landmarks: int = 100_000  # beyond: the least found are dropped
-    # projection search radius (x fx, times the octave scale)
+    # projection search radius (times the octave scale): the larger of an angle (x fx: the
+    # pose's rotation error, which scales with the focal) and pixels (the keypoint's error and
+    # the archived point's depth error seen from elsewhere, (z / b) sigma_d sin(parallax) px,
+    # which do not shrink with the focal: a short-focal fisheye needs them); 0 px: the angle
     reuse_radius_deg: float = limited(0.8, gt=0, lt=30)
+    reuse_radius_min_px: float = limited(0.0, lt=100)
     reuse_max_hamming: int = 50  # stricter than tracking: a wrong match is a wrong loop
     reuse_ratio: float = 0.8
 

@@ -68,7 +68,7 @@ class StereoTracker:
         self.scale = pyramid_scales(c)
         fx = rectifier.geometry.fx  # angles in the configuration -> pixels on this rig
         self._track_radius_px = fx * np.radians(c.track_radius_deg)
-        self._reuse_radius_px = fx * np.radians(c.reuse_radius_deg)
+        self._reuse_radius_px = max(fx * np.radians(c.reuse_radius_deg), c.reuse_radius_min_px)
         self._kf_parallax_px = fx * np.radians(c.kf_parallax_deg)
         self._cull_rules = CullRules(
             s_to_ns(c.landmark_max_unseen_s),
