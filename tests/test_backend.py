@@ -410,6 +410,35 @@ def test_refound_anchor_gate_refuses_what_the_stereo_point_contradicts(
         assert len(added.anchors) == int(expect), (chi2, z, offset)
 
 
+def test_refound_anchor_with_the_stereo_covariance_is_loose_along_the_ray() -> None:
+    """`refound_prior_stereo`: the anchor's covariance is its sigma plus the re-finding stereo
+    point's triangulation covariance, so along the ray (where one stereo measurement knows depth
+    to decimetres at 5 m) it barely pulls, and across it holds about as the sigma alone."""
+    from eurocslam.backend.factors import StereoModel
+    from eurocslam.camera import RectifiedStereo
+
+    z = 5.0
+    cfg = BackendConfig(refound_prior_stereo=True)
+    (factor,) = _refound(cfg, z, np.zeros(3)).anchors
+    (fixed,) = _refound(BackendConfig(), z, np.zeros(3)).anchors
+    key = factor.keys()[0]
+    fx, b = 458.0, 0.11
+    model = StereoModel(RectifiedStereo(fx, fx, 376.0, 240.0, b, 752, 480, np.eye(4)), cfg)
+    cov = model.point_covariance(376.0, 376.0 - fx * b / z, 240.0, 1.0)
+    cov = cov + cfg.refound_prior_sigma_m**2 * np.eye(3)
+
+    def cost(f: gtsam.NonlinearFactor, offset: np.ndarray) -> float:
+        v = gtsam.Values()
+        v.insert(key, np.array([0.0, 0.0, z]) + offset)
+        return float(f.error(v))
+
+    for d in (np.array([0.0, 0.0, 0.5]), np.array([0.02, 0.0, 0.0]), np.array([0.01, 0.01, 0.3])):
+        assert cost(factor, d) == pytest.approx(0.5 * d @ np.linalg.solve(cov, d), rel=1e-6)
+    along, across = np.array([0.0, 0.0, 0.5]), np.array([0.02, 0.0, 0.0])
+    assert cost(factor, along) < 0.01 * cost(fixed, along)  # 0.5 m along: ~nothing
+    assert 0.2 * cost(fixed, across) < cost(factor, across) < cost(fixed, across)
+
+
 @pytest.mark.parametrize("fx, baseline", [(458.0, 0.11), (718.9, 0.54)])
 def test_point_covariance_is_the_triangulation_of_one_stereo_measurement(
     fx: float, baseline: float

@@ -112,6 +112,10 @@ class BackendConfig:
     # their covariances (the anchor's sigma and the stereo triangulation's), chi-square 3 DoF
     # (11.34: 99 %; 0: always), as a loop must agree with the estimator's
     refound_prior_gate_chi2: float = limited(0.0, ge=0)
+    # that anchor's covariance: the anchor's sigma plus the re-finding stereo point's
+    # triangulation covariance (what this rig measures at that depth: on a short-focal fisheye a
+    # point 3 m away is known to decimetres along its ray, not to the 2 cm sigma alone)
+    refound_prior_stereo: bool = False
     # a pose found by place recognition (relocalization prior, loop edge): sigmas (rad, m)
     place_rot_sigma: float = limited(0.01, gt=0)
     place_pos_sigma: float = limited(0.02, gt=0)

@@ -56,6 +56,15 @@ class StereoObservations:
         self.inertial = inertial
         self.stereo = stereo
         self.lms = lms
+        # a landmark the smoother let go and the tracker re-found (map reuse) is anchored at its
+        # last smoothed position: the online estimate stays in the frame of the map it returns
+        # to instead of drifting away from it (`_anchor`). The smoother alone takes these
+        # priors; the final batch has the landmark's observations then and now on one variable
+        self._fixed_anchor: gtsam.noiseModel.Base | None = None
+        if cfg.refound_prior_sigma_m > 0:
+            self._fixed_anchor = gtsam.noiseModel.Isotropic.Sigma(3, cfg.refound_prior_sigma_m)
+            if cfg.refound_prior_huber:
+                self._fixed_anchor = huber(self._fixed_anchor, cfg.huber_k)
 
     def add(
         self,
@@ -80,16 +89,6 @@ class StereoObservations:
             if stereo_sigma is None or len(stereo_sigma) != len(uv)
             else np.round(np.asarray(stereo_sigma, dtype=np.float64), 3)
         )
-        # a landmark the smoother let go and the tracker re-found (map reuse) is anchored at its
-        # last smoothed position: the online estimate stays in the frame of the map it returns
-        # to instead of drifting away from it (robust with `refound_prior_huber`). The smoother
-        # alone takes these priors; the final batch has the landmark's observations then and now
-        # on one variable instead
-        anchor: gtsam.noiseModel.Base | None = None
-        if b.refound_prior_sigma_m > 0:
-            anchor = gtsam.noiseModel.Isotropic.Sigma(3, b.refound_prior_sigma_m)
-            if b.refound_prior_huber:
-                anchor = huber(anchor, b.huber_k)
         anchors: list[gtsam.NonlinearFactor] = []
         disp = uv[:, 0] - uv[:, 1]
         ok = np.isfinite(uv).all(axis=1) & (disp >= b.min_disparity_px)
@@ -148,13 +147,10 @@ class StereoObservations:
                 new_points.append((L(key_i), Xw))
                 lms.pos[key_i] = Xw
                 n_new += 1
-                if (
-                    anchor is not None
-                    and old is not None
-                    and lms.smoothed[old]
-                    and self._anchor_agrees(lms.pos[old], Xw, uv[i], float(scale[i]), T_world_rect0)
-                ):
-                    anchors.append(gtsam.PriorFactorPoint3(L(key_i), lms.pos[old], anchor))
+                if self._fixed_anchor is not None and old is not None and lms.smoothed[old]:
+                    a = self._anchor(lms.pos[old], Xw, uv[i], float(scale[i]), T_world_rect0)
+                    if a is not None:
+                        anchors.append(gtsam.PriorFactorPoint3(L(key_i), lms.pos[old], a))
             stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
             obs = (uv[i, 0], uv[i, 1], uv[i, 2], float(scale[i]))
             gkey = int(lms.gkey[key_i])
@@ -176,18 +172,27 @@ class StereoObservations:
             final_only.append((k, gkey, uv[i, 0], uv[i, 1], uv[i, 2], scale[i]))
         return StereoAdded(factors, new_points, stamps, subst, anchors, final_only, n_new)
 
-    def _anchor_agrees(
+    def _anchor(
         self, p_old: F64, p_new: F64, uv: F64, scale: float, T_world_rect0: F64
-    ) -> bool:
-        """`refound_prior_gate_chi2` (0: every anchor): the archived position `p_old` and the
-        re-finding stereo point's `p_new` (world) agree within the anchor's sigma and the stereo
+    ) -> gtsam.noiseModel.Base | None:
+        """The noise of the anchor holding a re-found landmark at its archived position `p_old`,
+        or None for no anchor. `refound_prior_gate_chi2` (0: always): `p_old` and the re-finding
+        stereo point `p_new` (world) agree within the anchor's sigma and the stereo
         triangulation's covariance (chi-square, 3 DoF), as a loop must agree with the
-        estimator's uncertainty before it moves the estimate."""
+        estimator's uncertainty before it moves the estimate. `refound_prior_stereo`: that sum
+        is the anchor's covariance (else the sigma alone); robust with `refound_prior_huber`."""
         b = self.cfg
-        if b.refound_prior_gate_chi2 <= 0:
-            return True
+        sigma2 = b.refound_prior_sigma_m**2
+        if b.refound_prior_gate_chi2 <= 0 and not b.refound_prior_stereo:
+            return self._fixed_anchor
         R = T_world_rect0[:3, :3]
         cov = R @ self.stereo.point_covariance(uv[0], uv[1], uv[2], scale) @ R.T
-        cov = cov + b.refound_prior_sigma_m**2 * np.eye(3)
-        d = np.asarray(p_old, dtype=np.float64) - p_new
-        return bool(d @ np.linalg.solve(cov, d) <= b.refound_prior_gate_chi2)
+        cov = cov + sigma2 * np.eye(3)
+        if b.refound_prior_gate_chi2 > 0:
+            d = np.asarray(p_old, dtype=np.float64) - p_new
+            if not d @ np.linalg.solve(cov, d) <= b.refound_prior_gate_chi2:
+                return None
+        if not b.refound_prior_stereo:
+            return self._fixed_anchor
+        noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(cov)
+        return huber(noise, b.huber_k) if b.refound_prior_huber else noise
