@@ -182,12 +182,11 @@ class StereoObservations:
         estimator's uncertainty before it moves the estimate. `refound_prior_stereo`: that sum
         is the anchor's covariance (else the sigma alone); robust with `refound_prior_huber`."""
         b = self.cfg
-        sigma2 = b.refound_prior_sigma_m**2
         if b.refound_prior_gate_chi2 <= 0 and not b.refound_prior_stereo:
             return self._fixed_anchor
         R = T_world_rect0[:3, :3]
         cov = R @ self.stereo.point_covariance(uv[0], uv[1], uv[2], scale) @ R.T
-        cov = cov + sigma2 * np.eye(3)
+        cov = cov + b.refound_prior_sigma_m**2 * np.eye(3)
         if b.refound_prior_gate_chi2 > 0:
             d = np.asarray(p_old, dtype=np.float64) - p_new
             if not d @ np.linalg.solve(cov, d) <= b.refound_prior_gate_chi2:
