@@ -147,6 +147,19 @@ def test_fast_preset_is_the_defaults_with_track_every_2() -> None:
         resolve_mode(fast, has_imu=False)
 
 
+def test_fisheye_preset_is_the_defaults_with_map_reuse_for_a_short_focal() -> None:
+    """configs/fisheye.yaml (README, docs/commands.md): the defaults but for map reuse's pixel
+    floor and the re-found landmark's stereo anchor."""
+    fisheye = load_config(REPO / "configs" / "fisheye.yaml")
+    default = RunConfig()
+    expected = dataclasses.replace(
+        default,
+        frontend=dataclasses.replace(default.frontend, reuse_radius_min_px=6.0),
+        backend=dataclasses.replace(default.backend, refound_prior_stereo=True),
+    )
+    assert fisheye == expected
+
+
 def test_a_limit_names_its_rule() -> None:
     """One line: the key, the value, and the bound it breaks (a number or another key)."""
     with pytest.raises(ConfigError) as e:
