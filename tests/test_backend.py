@@ -10,6 +10,7 @@ import pytest
 
 import eurocslam.backend.final_batch as final_batch_module
 from eurocslam.backend.estimator import KeyframeEstimator
+from eurocslam.backend.factors import StereoModel
 from eurocslam.backend.initializer import (
     InitialState,
     choose_mode,
@@ -339,22 +340,29 @@ def test_stereo_noise_follows_the_keypoint_scale() -> None:
     assert sigmas == [round(1.2**k, 6) for k in range(4)]
 
 
+def _refound_stereo(cfg: BackendConfig) -> StereoModel:
+    """The stereo model of `_refound`'s rig (EuRoC's focal and baseline)."""
+    from eurocslam.camera import RectifiedStereo
+
+    return StereoModel(RectifiedStereo(458.0, 458.0, 376.0, 240.0, 0.11, 752, 480, np.eye(4)), cfg)
+
+
+def _refound_uv(z: float) -> np.ndarray:
+    """Where `_refound`'s stereo point (0, 0, z) is seen: (uL, uR, v)."""
+    return np.array([376.0, 376.0 - 458.0 * 0.11 / z, 240.0])
+
+
 def _refound(cfg: BackendConfig, z: float, archived_offset: np.ndarray) -> StereoAdded:
     """Landmark 7 archived at (0, 0, z) + `archived_offset` (smoothed, then let go), re-found
     by keyframe 3 at the identity pose as a stereo point at (0, 0, z) on EuRoC's rig."""
-    from eurocslam.backend.factors import StereoModel
     from eurocslam.backend.observations import StereoObservations
-    from eurocslam.camera import RectifiedStereo
 
-    fx, b = 458.0, 0.11
-    geom = RectifiedStereo(fx, fx, 376.0, 240.0, b, 752, 480, np.eye(4))
     lms = LandmarkKeys()
     old = lms.new_key(7, 0)
     lms.set_window(np.array([old]), np.array([[0.0, 0.0, z]]) + archived_offset)
     lms.set_window(np.zeros(0, np.int64), np.zeros((0, 3)))  # let go: smoothed, not active
-    obs = StereoObservations(cfg, True, StereoModel(geom, cfg), lms)
-    uv = np.array([[376.0, 376.0 - fx * b / z, 240.0]])
-    return obs.add(3, np.eye(4), np.array([7]), uv, None, 1.0)
+    obs = StereoObservations(cfg, True, _refound_stereo(cfg), lms)
+    return obs.add(3, np.eye(4), np.array([7]), _refound_uv(z)[None], None, 1.0)
 
 
 @pytest.mark.parametrize("huber", [False, True])
@@ -414,17 +422,12 @@ def test_refound_anchor_with_the_stereo_covariance_is_loose_along_the_ray() -> N
     """`refound_prior_stereo`: the anchor's covariance is its sigma plus the re-finding stereo
     point's triangulation covariance, so along the ray (where one stereo measurement knows depth
     to decimetres at 5 m) it barely pulls, and across it holds about as the sigma alone."""
-    from eurocslam.backend.factors import StereoModel
-    from eurocslam.camera import RectifiedStereo
-
     z = 5.0
     cfg = BackendConfig(refound_prior_stereo=True)
     (factor,) = _refound(cfg, z, np.zeros(3)).anchors
     (fixed,) = _refound(BackendConfig(), z, np.zeros(3)).anchors
     key = factor.keys()[0]
-    fx, b = 458.0, 0.11
-    model = StereoModel(RectifiedStereo(fx, fx, 376.0, 240.0, b, 752, 480, np.eye(4)), cfg)
-    cov = model.point_covariance(376.0, 376.0 - fx * b / z, 240.0, 1.0)
+    cov = _refound_stereo(cfg).point_covariance(*_refound_uv(z), 1.0)
     cov = cov + cfg.refound_prior_sigma_m**2 * np.eye(3)
 
     def cost(f: gtsam.NonlinearFactor, offset: np.ndarray) -> float:
