@@ -449,7 +449,6 @@ def test_point_covariance_is_the_triangulation_of_one_stereo_measurement(
     """`StereoModel.point_covariance`: J J^T sigma^2 of the triangulation (checked against a
     numeric Jacobian), a depth sigma of z^2 sigma sqrt(2) / (fx b) on the optical axis, lateral
     sigmas z sigma / f; for EuRoC's 0.11 m rig and KITTI's 0.54 m one, near and far."""
-    from eurocslam.backend.factors import StereoModel
     from eurocslam.camera import RectifiedStereo
 
     geom = RectifiedStereo(fx, fx, 376.0, 240.0, baseline, 752, 480, np.eye(4))
