@@ -40,7 +40,7 @@ from eurocslam.config import (
 )
 from eurocslam.dataset.calib import default_rig
 from eurocslam.dataset.types import ImuData
-from eurocslam.geometry import rotation_angle
+from eurocslam.geometry import make_T, rotation_angle
 
 T0 = 1_400_000_000_000_000_000
 RIG = default_rig()
@@ -442,6 +442,55 @@ def test_refound_anchor_with_the_stereo_covariance_is_loose_along_the_ray() -> N
     assert 0.2 * cost(fixed, across) < cost(factor, across) < cost(fixed, across)
 
 
+def _refound_after_views(cfg: BackendConfig, z: float, n_views: int) -> StereoAdded:
+    """Landmark 7 at (0, 0, z) seen by keyframes 0..n_views-1 along x (0.1 m apart), smoothed
+    and let go, then re-found as `_refound` does (keyframe 9, identity pose)."""
+    from eurocslam.backend.observations import StereoObservations
+
+    lms = LandmarkKeys()
+    obs = StereoObservations(cfg, True, _refound_stereo(cfg), lms)
+    for k in range(n_views):
+        x = -0.1 * k  # the point in keyframe k's frame
+        uv = np.array([[376.0 + 458.0 * x / z, 376.0 + 458.0 * (x - 0.11) / z, 240.0]])
+        obs.add(k, make_T(np.eye(3), np.array([0.1 * k, 0.0, 0.0])), np.array([7]), uv, None, k)
+    lms.set_window(np.array([lms.key_of[7]]), np.array([[0.0, 0.0, z]]))
+    lms.set_window(np.zeros(0, np.int64), np.zeros((0, 3)))
+    return obs.add(9, np.eye(4), np.array([7]), _refound_uv(z)[None], None, 9.0)
+
+
+def test_refound_anchor_from_the_views_is_as_tight_as_the_landmarks_observations() -> None:
+    """`refound_prior_views`: the anchor's covariance is its sigma plus the inverse of the
+    information of the stereo observations the smoother took of the landmark: seen once it is
+    as loose along the ray as one stereo point; seen from ten places along a 0.9 m line its
+    depth is known from their parallax and count, and the anchor holds it."""
+    z = 5.0
+    cfg = BackendConfig(refound_prior_views=True)
+    model = _refound_stereo(cfg)
+    (once,) = _refound_after_views(cfg, z, 1).anchors
+    (ten,) = _refound_after_views(cfg, z, 10).anchors
+    key = once.keys()[0]
+
+    def cost(f: gtsam.NonlinearFactor, offset: np.ndarray) -> float:
+        v = gtsam.Values()
+        v.insert(key, np.array([0.0, 0.0, z]) + offset)
+        return float(f.error(v))
+
+    info = sum(
+        model.point_information(
+            np.array([[376.0 - 45.8 * k / z, 376.0 - 45.8 * k / z - 50.38 / z, 240.0]]),
+            np.ones(1),
+        )[0]
+        for k in range(10)
+    )
+    cov = cfg.refound_prior_sigma_m**2 * np.eye(3) + np.linalg.inv(info)
+    for d in (np.array([0.0, 0.0, 0.5]), np.array([0.02, 0.0, 0.0]), np.array([0.01, 0.01, 0.3])):
+        assert cost(ten, d) == pytest.approx(0.5 * d @ np.linalg.solve(cov, d), rel=1e-6)
+    along = np.array([0.0, 0.0, 0.5])
+    one = model.point_covariance(*_refound_uv(z), 1.0) + cfg.refound_prior_sigma_m**2 * np.eye(3)
+    assert cost(once, along) == pytest.approx(0.5 * along @ np.linalg.solve(one, along), rel=1e-6)
+    assert cost(ten, along) > 20 * cost(once, along)  # depth from ten views, not one
+
+
 @pytest.mark.parametrize("fx, baseline", [(458.0, 0.11), (718.9, 0.54)])
 def test_point_covariance_is_the_triangulation_of_one_stereo_measurement(
     fx: float, baseline: float
@@ -464,6 +513,8 @@ def test_point_covariance_is_the_triangulation_of_one_stereo_measurement(
             cov = model.point_covariance(*m, scale=1.2)
             J = np.column_stack([(point(m + dm) - point(m - dm)) / 2e-6 for dm in np.eye(3) * 1e-6])
             np.testing.assert_allclose(cov, J @ J.T * 1.2**2, rtol=1e-5, atol=1e-12)
+            info = model.point_information(m[None], np.array([1.2]))[0]
+            np.testing.assert_allclose(info @ cov, np.eye(3), atol=1e-6)  # its inverse
         on_axis = model.point_covariance(376.0, 376.0 - fx * baseline / z, 240.0, 1.0)
         assert np.sqrt(on_axis[2, 2]) == pytest.approx(z * z * np.sqrt(2) / (fx * baseline))
         assert np.sqrt(on_axis[0, 0]) == pytest.approx(z / fx)

@@ -116,6 +116,10 @@ class BackendConfig:
     # triangulation covariance (what this rig measures at that depth: on a short-focal fisheye a
     # point 3 m away is known to decimetres along its ray, not to the 2 cm sigma alone)
     refound_prior_stereo: bool = False
+    # the anchor's covariance adds the archived position's own: the inverse of the information
+    # of every stereo observation the smoother took of the landmark (its views' parallax and
+    # count, not one pair's depth; the poses' uncertainty is the sigma's part)
+    refound_prior_views: bool = False
     # a pose found by place recognition (relocalization prior, loop edge): sigmas (rad, m)
     place_rot_sigma: float = limited(0.01, gt=0)
     place_pos_sigma: float = limited(0.02, gt=0)

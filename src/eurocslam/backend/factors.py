@@ -67,6 +67,26 @@ class StereoModel:
         sigma = self._cfg.stereo_sigma_px * max(scale, 1e-3)
         return np.asarray(J @ J.T * sigma * sigma, dtype=np.float64)
 
+    def point_information(self, uv: F64, scale: F64) -> F64:
+        """The information (N, 3, 3) in rect0 of stereo measurements `uv` (N, 3: uL, uR, v)
+        about the points they triangulate to: H^T H / sigma^2 with H = d(uL, uR, v) / d(x, y,
+        z), the inverse of `point_covariance` (several views of one point add up)."""
+        g = self.geometry
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 3)
+        z = g.fx * g.baseline / (uv[:, 0] - uv[:, 1])
+        x = (uv[:, 0] - g.cx) * z / g.fx
+        y = (uv[:, 2] - g.cy) * z / g.fy
+        H = np.zeros((len(uv), 3, 3))
+        H[:, 0, 0] = H[:, 1, 0] = g.fx / z
+        H[:, 0, 2] = -g.fx * x / z**2
+        H[:, 1, 2] = -g.fx * (x - g.baseline) / z**2
+        H[:, 2, 1] = g.fy / z
+        H[:, 2, 2] = -g.fy * y / z**2
+        sigma = self._cfg.stereo_sigma_px * np.maximum(np.asarray(scale, dtype=np.float64), 1e-3)
+        return np.asarray(
+            np.einsum("nki,nkj->nij", H, H) / (sigma**2)[:, None, None], dtype=np.float64
+        )
+
     def factor(
         self, k: int, landmark_key: int, uL: float, uR: float, v: float, scale: float
     ) -> gtsam.GenericStereoFactor3D:

@@ -39,6 +39,9 @@ class LandmarkKeys:
         self.first_kf = np.zeros(1024, np.int64)  # the keyframe that first saw the landmark
         self.gkey = np.zeros(1024, np.int64)  # the landmark's key in the global graph
         self.nobs = np.zeros(1024, np.int64)  # per global key: observations in the segment
+        # per global key: the information (3, 3, world) of the stereo observations the smoother
+        # took, where `backend.refound_prior_views` keeps it (else zeros)
+        self.info = np.zeros((1024, 3, 3))
 
     def is_active(self, fid: int) -> bool:
         k = self.key_of.get(fid)
@@ -60,6 +63,7 @@ class LandmarkKeys:
             self.fid = np.resize(self.fid, n)
             self.gkey = np.resize(self.gkey, n)
             self.nobs = np.pad(self.nobs, (0, n - self.nobs.size))  # zeros
+            self.info = np.concatenate([self.info, np.zeros((n - len(self.info), 3, 3))])
             self.active = np.pad(self.active, (0, n - self.active.size))  # False
             self.smoothed = np.pad(self.smoothed, (0, n - self.smoothed.size))
             self.first_kf = np.resize(self.first_kf, n)

@@ -125,6 +125,11 @@ class StereoObservations:
                 extra = idx[rest[more]]
             idx = idx[pick]
         T_world_rect0 = np.asarray(T_world_body) @ st.T_body_rect0
+        info = None  # the observations' information in the world frame, for later anchors
+        if b.refound_prior_views and idx.size:
+            R = T_world_rect0[:3, :3]
+            info_rect = self.stereo.point_information(uv[idx], np.asarray(scale[idx], np.float64))
+            info = np.einsum("ij,njk,lk->nil", R, info_rect, R)
 
         def world_point(i: int) -> F64:
             z = depth[i]
@@ -137,7 +142,7 @@ class StereoObservations:
         stamps: dict[int, float] = {}
         subst: dict[int, gtsam.NonlinearFactor] = {}
         final_only: list[tuple[int, int, float, float, float, float]] = []
-        for i in idx.tolist():
+        for n_obs, i in enumerate(idx.tolist()):
             fid = int(ids[i])
             key_i = lms.key_of.get(fid)
             if key_i is None or not lms.active[key_i]:
@@ -148,13 +153,15 @@ class StereoObservations:
                 lms.pos[key_i] = Xw
                 n_new += 1
                 if self._fixed_anchor is not None and old is not None and lms.smoothed[old]:
-                    a = self._anchor(lms.pos[old], Xw, uv[i], float(scale[i]), T_world_rect0)
+                    a = self._anchor(old, Xw, uv[i], float(scale[i]), T_world_rect0)
                     if a is not None:
                         anchors.append(gtsam.PriorFactorPoint3(L(key_i), lms.pos[old], a))
             stamps[L(key_i)] = tk  # new or re-observed: (re-)stamp
             obs = (uv[i, 0], uv[i, 1], uv[i, 2], float(scale[i]))
             gkey = int(lms.gkey[key_i])
             lms.nobs[gkey] += 1
+            if info is not None:
+                lms.info[gkey] += info[n_obs]
             if gkey != key_i:
                 subst[len(factors)] = self.stereo.factor(k, gkey, *obs)
             factors.append(self.stereo.factor(k, key_i, *obs))
@@ -173,25 +180,33 @@ class StereoObservations:
         return StereoAdded(factors, new_points, stamps, subst, anchors, final_only, n_new)
 
     def _anchor(
-        self, p_old: F64, p_new: F64, uv: F64, scale: float, T_world_rect0: F64
+        self, old: int, p_new: F64, uv: F64, scale: float, T_world_rect0: F64
     ) -> gtsam.noiseModel.Base | None:
-        """The noise of the anchor holding a re-found landmark at its archived position `p_old`,
-        or None for no anchor. `refound_prior_gate_chi2` (0: always): `p_old` and the re-finding
-        stereo point `p_new` (world) agree within the anchor's sigma and the stereo
-        triangulation's covariance (chi-square, 3 DoF), as a loop must agree with the
-        estimator's uncertainty before it moves the estimate. `refound_prior_stereo`: that sum
-        is the anchor's covariance (else the sigma alone); robust with `refound_prior_huber`."""
-        b = self.cfg
-        if b.refound_prior_gate_chi2 <= 0 and not b.refound_prior_stereo:
+        """The noise of the anchor holding a re-found landmark at its archived position (key
+        index `old`), or None for no anchor. The archived position is known to the sigma
+        (`refound_prior_sigma_m`: the poses it was mapped from), plus with `refound_prior_views`
+        the inverse of the information of its observations the smoother took (how well its
+        views fixed it). `refound_prior_gate_chi2` (0: always): it and the re-finding stereo
+        point `p_new` (world) agree within that covariance and the stereo triangulation's
+        (chi-square, 3 DoF), as a loop must agree with the estimator's uncertainty before it
+        moves the estimate. `refound_prior_stereo`: the anchor's covariance adds the
+        triangulation's. Robust with `refound_prior_huber`."""
+        b, lms = self.cfg, self.lms
+        if b.refound_prior_gate_chi2 <= 0 and not (b.refound_prior_stereo or b.refound_prior_views):
             return self._fixed_anchor
+        cov_old = b.refound_prior_sigma_m**2 * np.eye(3)
+        if b.refound_prior_views:
+            info = lms.info[lms.gkey[old]]
+            if np.linalg.det(info) > 0:
+                cov_old = cov_old + np.linalg.inv(info)
         R = T_world_rect0[:3, :3]
-        cov = R @ self.stereo.point_covariance(uv[0], uv[1], uv[2], scale) @ R.T
-        cov = cov + b.refound_prior_sigma_m**2 * np.eye(3)
+        cov_new = R @ self.stereo.point_covariance(uv[0], uv[1], uv[2], scale) @ R.T
         if b.refound_prior_gate_chi2 > 0:
-            d = np.asarray(p_old, dtype=np.float64) - p_new
-            if not d @ np.linalg.solve(cov, d) <= b.refound_prior_gate_chi2:
+            d = np.asarray(lms.pos[old], dtype=np.float64) - p_new
+            if not d @ np.linalg.solve(cov_new + cov_old, d) <= b.refound_prior_gate_chi2:
                 return None
-        if not b.refound_prior_stereo:
+        if not (b.refound_prior_stereo or b.refound_prior_views):
             return self._fixed_anchor
+        cov = cov_new + cov_old if b.refound_prior_stereo else cov_old
         noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(cov)
         return huber(noise, b.huber_k) if b.refound_prior_huber else noise
