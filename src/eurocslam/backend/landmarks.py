@@ -27,7 +27,8 @@ def landmark_indices(keys: Iterable[int]) -> NDArray[np.int64]:
 
 class LandmarkKeys:
     """Per landmark key index: latest position, frontend id, whether it is in the smoother
-    window, its key in the global graph, and (per global key) its observations."""
+    window, its key in the global graph, and (per global key) its observations and, where kept,
+    their information."""
 
     def __init__(self) -> None:
         self.key_of: dict[int, int] = {}  # frontend landmark id -> current key index
