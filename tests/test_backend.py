@@ -477,7 +477,7 @@ def test_refound_anchor_from_the_views_is_as_tight_as_the_landmarks_observations
 
     info = sum(
         model.point_information(
-            np.array([[376.0 - 45.8 * k / z, 376.0 - 45.8 * k / z - 50.38 / z, 240.0]]),
+            np.array([[376.0 - 458.0 * 0.1 * k / z, 376.0 - 458.0 * (0.1 * k + 0.11) / z, 240.0]]),
             np.ones(1),
         )[0]
         for k in range(10)
