@@ -73,16 +73,15 @@ def run(seq_path: Path, cfg: dict[str, object]) -> tuple[list[dict[str, Any]], d
             return m
 
         self._find = watched_find
-        n_events = len(self.events)
         try:
-            fix = loop(self, view, segment, T_seg_query, *args, **kwargs)
+            answer = loop(self, view, segment, T_seg_query, *args, **kwargs)
         finally:
             del self._find
-        gated = [e for e in self.events[n_events:] if e.gate_chi2 == e.gate_chi2]
+        gated = [e for e in answer.events if e.gate_chi2 == e.gate_chi2]
         m = seen[-1] if seen else None
-        if m is not None and self.book.keyframes[m.key].segment == segment:
-            ref = self.book.keyframes[m.key]
-            T_cand = self.book.in_frame(m.key)
+        if m is not None and self._keyframes[m.key].segment == segment:
+            ref = self._keyframes[m.key]
+            T_cand = self._in_frame(m.key)
             measured = m.T_world_query @ inv_T(T_seg_query)
             true = T_cand @ inv_T(gt_pose(ref.t_ns)) @ gt_pose(view.t_ns) @ inv_T(T_seg_query)
             p = T_seg_query[:3, 3]
@@ -100,10 +99,10 @@ def run(seq_path: Path, cfg: dict[str, object]) -> tuple[list[dict[str, Any]], d
                     "meas_deg": meas_deg,
                     "meas_m": meas_m,
                     "gate_chi2": gated[0].gate_chi2 if gated else None,
-                    "corrected": fix is not None,
+                    "corrected": answer.loop is not None,
                 }
             )
-        return fix
+        return answer
 
     place_stage.PlaceStage.loop = watched_loop  # type: ignore[method-assign]
     try:
