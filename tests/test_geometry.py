@@ -144,3 +144,16 @@ def test_yaw() -> None:
     # yaw of a rotation with pitch/roll added keeps the heading
     r = rot_z(0.7) @ so3_exp(np.array([0.0, 0.2, 0.0]))
     assert yaw_of(r) == pytest.approx(0.7, abs=1e-12)
+
+
+def test_se3_exp_is_the_inverse_of_se3_log() -> None:
+    """`se3_exp(se3_log(T)) == T` and back, small and large rotations (and none)."""
+    from eurocslam.geometry import se3_exp, se3_log
+
+    rng = np.random.default_rng(7)
+    for angle in (0.0, 1e-6, 0.3, 2.5):  # below pi: the log's range
+        axis = rng.normal(size=3)
+        xi = np.r_[axis / np.linalg.norm(axis) * angle, rng.normal(size=3)]
+        np.testing.assert_allclose(se3_log(se3_exp(xi)), xi, atol=1e-9)
+    T = se3_exp(np.r_[0.2, -0.1, 0.7, 1.0, 2.0, -0.5])
+    np.testing.assert_allclose(se3_exp(se3_log(T)), T, atol=1e-12)

@@ -68,6 +68,7 @@ def _corrections(
     drift: F64 = DRIFT,
     inliers: int = 200,
     cov_match: F64 = TIGHT_MATCH,
+    inertial: bool = False,
 ) -> tuple[list[F64 | None], list[PlaceEvent]]:
     """Two keyframes 20 s after a filed one (covariance zero) each recognise it; the match puts
     them `drift` away from where the estimate has them, the estimator's covariance of their
@@ -82,7 +83,7 @@ def _corrections(
         T_est = make_T(np.eye(3), np.array([0.5 * i, 0.0, 0.0]))
         given.match = PlaceMatch(0, 0.5, drift @ T_est, inliers, cov_match)
         asked = None if cov_query is None else (lambda: cov_query)
-        answer = stage.loop(_view(i + 1, 20.0 + i), 0, T_est, asked)
+        answer = stage.loop(_view(i + 1, 20.0 + i), 0, T_est, asked, inertial=inertial)
         events += answer.events
         out.append(None if answer.loop is None else answer.loop.D)
     return out, events
@@ -225,3 +226,47 @@ def test_a_loop_candidate_must_look_like_the_query_as_much_as_its_covisible_neig
     stage.loop(query, 0, np.eye(4), index=3)
     stage.loop(_with_landmarks(_view(4, 0.4), range(1000, 1100)), 0, np.eye(4), index=4)
     assert views.asked == [pytest.approx(0.3), 0.0]
+
+
+@pytest.mark.parametrize("inertial", [False, True])
+def test_with_an_imu_the_significance_is_that_of_the_correction_applied(inertial: bool) -> None:
+    """`places.loop_significance_4dof`: a drift of 1.3 deg of roll and 2 mm, measured by a match
+    that knows tilt to 0.3 deg, is significant on 6 DoF (the tilt alone: (1.3 / 0.3)^2 = 18.8).
+    An IMU run applies only yaw and the move of the query's position (here ~2 mm: the query
+    sits on the roll axis), which the match cannot tell from none: kept, not applied. Without an
+    IMU the whole drift is applied, as before; 1.5 deg of yaw and 12 cm stay applied either
+    way."""
+    cfg = PlacesConfig(loop_significance_4dof=True)
+    match = _cov((0.3, 0.3, 0.3), 0.01)
+    tilt = make_T(so3_exp(np.radians([1.3, 0.0, 0.0])), np.array([0.002, 0.0, 0.0]))
+    fixes, events = _corrections(cfg, drift=tilt, cov_match=match, inertial=inertial)
+    assert (fixes[1] is None) == inertial
+    (e,) = events
+    assert not e.refused
+    fixes, _ = _corrections(cfg, cov_match=match, inertial=inertial)  # yaw and 12 cm
+    assert fixes[1] is not None
+    # off (the default): the 6-DoF test, with or without an IMU
+    fixes, _ = _corrections(PlacesConfig(), drift=tilt, cov_match=match, inertial=inertial)
+    assert fixes[1] is not None
+
+
+def test_applied_significance_carries_the_matchs_covariance_to_the_applied_correction() -> None:
+    """`applied_significance` against a Monte Carlo of the match's error: the chi-square of the
+    applied correction (yaw, move of p) under the sampled covariance of what is applied."""
+    from eurocslam.geometry import se3_exp, yaw_of
+    from eurocslam.places.loop_gate import applied_significance
+
+    rng = np.random.default_rng(3)
+    D = make_T(so3_exp(np.radians([0.4, -0.9, 0.5])), np.array([0.01, -0.02, 0.04]))
+    p = np.array([1.5, -0.5, 0.9])
+    A = rng.normal(size=(6, 6)) * np.r_[[np.radians(0.3)] * 3, [0.03] * 3][:, None]
+    cov = A @ A.T + np.diag([1e-6] * 3 + [1e-5] * 3)
+
+    def applied(T: np.ndarray) -> np.ndarray:
+        return np.r_[yaw_of(T[:3, :3]), T[:3, :3] @ p + T[:3, 3] - p]
+
+    xi = se3_log(D)
+    ys = np.array([applied(se3_exp(x)) for x in rng.multivariate_normal(xi, cov, 20000)])
+    y = applied(D)
+    expected = y @ np.linalg.solve(np.cov(ys.T), y)
+    assert applied_significance(D, p, cov) == pytest.approx(expected, rel=0.05)

@@ -201,6 +201,10 @@ class PlacesConfig:
     # of a smoother update) and at the query when a loop reaches the gate; a candidate between
     # samples takes the next one's (the larger: the stricter gate)
     loop_gate_chi2: float = limited(16.81, gt=0)
+    # with an IMU, the significance test (the drift against the match's own error) judges the
+    # correction that is applied (yaw and the move of the query's position, 4 DoF, at the
+    # probability `loop_gate_chi2` has on 6), not the 6-DoF drift whose tilt the IMU rules out
+    loop_significance_4dof: bool = False
     loop_covariance_every_s: float = limited(5.0, gt=0)
     # act on such a loop online: move the estimate onto the old map (the smoother restarts from
     # the moved state, the tracker's map moves with it) and give the final batch the loop edge;

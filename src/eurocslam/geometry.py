@@ -253,6 +253,19 @@ def se3_adjoint(T: F64) -> F64:
     return A
 
 
+def se3_exp(xi: F64) -> F64:
+    """The pose (4, 4) `exp(twist)` of a twist (6,) [rotation vector, translation part]: the
+    inverse of `se3_log`."""
+    w = np.asarray(xi[:3], dtype=np.float64)
+    th = float(np.linalg.norm(w))
+    W = skew(w)
+    if th < 1e-9:
+        V = np.eye(3) + 0.5 * W
+    else:
+        V = np.eye(3) + (1.0 - np.cos(th)) / th**2 * W + (th - np.sin(th)) / th**3 * (W @ W)
+    return make_T(so3_exp(w), V @ np.asarray(xi[3:], dtype=np.float64))
+
+
 def se3_log(T: F64) -> F64:
     """The twist (6,) [rotation vector, translation part] with `exp(twist) = T`."""
     w = so3_log(T[:3, :3])

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2 as chi2_dist
 
 from eurocslam.camera import RectifiedStereo
 from eurocslam.config import PlacesConfig
@@ -44,7 +45,7 @@ from eurocslam.maps.store import MapKeyframe
 from eurocslam.pipeline.frames import FrameView
 from eurocslam.pipeline.records import PlaceEvent, PlaceKind
 from eurocslam.places.covisibility import COVISIBLE_LOOKBACK, Covisibility
-from eurocslam.places.loop_gate import loop_gate, loop_significance, psd
+from eurocslam.places.loop_gate import applied_significance, loop_gate, loop_significance, psd
 from eurocslam.places.recognizer import CandidatePoints, PlaceMatch, PlaceRecognizer, PlaceView
 from eurocslam.places.vocabulary import BowVector, Vocabulary, default_vocabulary
 from eurocslam.timebase import s_to_ns
@@ -274,6 +275,7 @@ class PlaceStage:
         T_seg_query: F64,
         cov_query: Callable[[], F64 | None] | None = None,
         index: int = -1,
+        inertial: bool = False,
     ) -> PlaceAnswer:
         """`loop`: a consistent loop large enough to correct at this keyframe that passes the
         gate (None: none). `cov_query()`: the estimator's covariance of the query's pose
@@ -281,7 +283,7 @@ class PlaceStage:
         asked only for a loop that reaches the gate. Without `cov_query` there is no gate (no
         estimator). `index`: the query's keyframe index in the segment (its covisible
         neighbours set the least appearance score a candidate needs, `_covisible_floor`; -1:
-        none)."""
+        none). `inertial`: the run has an IMU (the correction applied is 4 DoF)."""
         c, frames, kfs = self.cfg, self.frames, self._keyframes
         frame = frames.frame_of(segment)
         t_max = view.t_ns - s_to_ns(c.loop_min_age_s)
@@ -338,7 +340,13 @@ class PlaceStage:
                 return PlaceAnswer(
                     (self._event(PlaceKind.LOOP, view, segment, m, p_q, 0.0, 0.0, *refused),)
                 )
-            if not loop_significance(D, cov_match) > c.loop_gate_chi2:
+            if c.loop_significance_4dof and inertial:
+                significant = applied_significance(D, T_seg_query[:3, 3], cov_match) > float(
+                    chi2_dist.ppf(chi2_dist.cdf(c.loop_gate_chi2, 6), 4)
+                )
+            else:
+                significant = loop_significance(D, cov_match) > c.loop_gate_chi2
+            if not significant:
                 # within the match's own error: the loop cannot tell this drift from none
                 kept = (chi2, False, dm, dd)
                 return PlaceAnswer(

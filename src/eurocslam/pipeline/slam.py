@@ -394,7 +394,9 @@ class SlamPipeline:
         if merged.merge is not None:
             self.frames.merge(seg, *merged.merge)
         else:
-            loop = p.loop(view, seg, upd.nav.T_world_body, self.live.est.pose_covariance, upd.index)
+            loop = p.loop(
+                view, seg, upd.nav.T_world_body, self.live.est.pose_covariance, upd.index, inertial
+            )
             self.outputs.add_events(loop.events)
             closed = None if loop.loop is None else self.live.close_loop(loop.loop, upd, inertial)
             if closed is not None:  # the estimate moved; the tracker's map moves with it
