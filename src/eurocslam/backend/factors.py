@@ -8,7 +8,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from eurocslam.backend.preintegration import make_params
-from eurocslam.camera import RectifiedStereo
+from eurocslam.camera import RectifiedStereo, triangulate_rect
 from eurocslam.config import BackendConfig, ImuConfig
 from eurocslam.dataset.calib import ImuCalib
 from eurocslam.dataset.types import ImuData
@@ -73,9 +73,7 @@ class StereoModel:
         z), the inverse of `point_covariance` (several views of one point add up)."""
         g = self.geometry
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 3)
-        z = g.fx * g.baseline / (uv[:, 0] - uv[:, 1])
-        x = (uv[:, 0] - g.cx) * z / g.fx
-        y = (uv[:, 2] - g.cy) * z / g.fy
+        x, y, z = triangulate_rect(uv[:, 0], uv[:, 1], uv[:, 2], g).T
         H = np.zeros((len(uv), 3, 3))
         H[:, 0, 0] = H[:, 1, 0] = g.fx / z
         H[:, 0, 2] = -g.fx * x / z**2

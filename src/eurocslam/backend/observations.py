@@ -192,7 +192,8 @@ class StereoObservations:
         moves the estimate. `refound_prior_stereo`: the anchor's covariance adds the
         triangulation's. Robust with `refound_prior_huber`."""
         b, lms = self.cfg, self.lms
-        if b.refound_prior_gate_chi2 <= 0 and not (b.refound_prior_stereo or b.refound_prior_views):
+        shaped = b.refound_prior_stereo or b.refound_prior_views  # a covariance, not the sigma
+        if b.refound_prior_gate_chi2 <= 0 and not shaped:
             return self._fixed_anchor
         cov_old = b.refound_prior_sigma_m**2 * np.eye(3)
         if b.refound_prior_views:
@@ -205,7 +206,7 @@ class StereoObservations:
             d = np.asarray(lms.pos[old], dtype=np.float64) - p_new
             if not d @ np.linalg.solve(cov_new + cov_old, d) <= b.refound_prior_gate_chi2:
                 return None
-        if not (b.refound_prior_stereo or b.refound_prior_views):
+        if not shaped:
             return self._fixed_anchor
         cov = cov_new + cov_old if b.refound_prior_stereo else cov_old
         noise: gtsam.noiseModel.Base = gtsam.noiseModel.Gaussian.Covariance(cov)
