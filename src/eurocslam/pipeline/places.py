@@ -28,7 +28,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2 as chi2_dist
 
 from eurocslam.camera import RectifiedStereo
 from eurocslam.config import PlacesConfig
@@ -45,7 +44,7 @@ from eurocslam.maps.store import MapKeyframe
 from eurocslam.pipeline.frames import FrameView
 from eurocslam.pipeline.records import PlaceEvent, PlaceKind
 from eurocslam.places.covisibility import COVISIBLE_LOOKBACK, Covisibility
-from eurocslam.places.loop_gate import applied_significance, loop_gate, loop_significance, psd
+from eurocslam.places.loop_gate import drift_significant, loop_gate, psd
 from eurocslam.places.recognizer import CandidatePoints, PlaceMatch, PlaceRecognizer, PlaceView
 from eurocslam.places.vocabulary import BowVector, Vocabulary, default_vocabulary
 from eurocslam.timebase import s_to_ns
@@ -340,13 +339,8 @@ class PlaceStage:
                 return PlaceAnswer(
                     (self._event(PlaceKind.LOOP, view, segment, m, p_q, 0.0, 0.0, *refused),)
                 )
-            if c.loop_significance_4dof and inertial:
-                significant = applied_significance(D, T_seg_query[:3, 3], cov_match) > float(
-                    chi2_dist.ppf(chi2_dist.cdf(c.loop_gate_chi2, 6), 4)
-                )
-            else:
-                significant = loop_significance(D, cov_match) > c.loop_gate_chi2
-            if not significant:
+            p_query = T_seg_query[:3, 3] if c.loop_significance_4dof and inertial else None
+            if not drift_significant(D, cov_match, c.loop_gate_chi2, p_query):
                 # within the match's own error: the loop cannot tell this drift from none
                 kept = (chi2, False, dm, dd)
                 return PlaceAnswer(

@@ -16,6 +16,7 @@ correction that is applied, `applied_significance`).
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from eurocslam.geometry import F64, make_T, rot_z, se3_exp, se3_log, yaw_of
 
@@ -78,6 +79,17 @@ def applied_significance(D: F64, p: F64, cov_match: F64) -> float:
         return float(y @ np.linalg.solve(J @ cov_match @ J.T, y))
     except np.linalg.LinAlgError:
         return float("inf")
+
+
+def drift_significant(D: F64, cov_match: F64, chi2: float, p_query: F64 | None = None) -> bool:
+    """The loop's drift `D` is one its match tells from its own error: the 6-DoF
+    `loop_significance` above `chi2`, or, with the query's position `p_query` (an IMU run with
+    `places.loop_significance_4dof`), the applied correction's `applied_significance` above the
+    4-DoF chi-square of the same probability."""
+    if p_query is None:
+        return loop_significance(D, cov_match) > chi2
+    bound = float(chi2_dist.ppf(chi2_dist.cdf(chi2, 6), 4))
+    return applied_significance(D, p_query, cov_match) > bound
 
 
 def psd(M: F64) -> F64:
