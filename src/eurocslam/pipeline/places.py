@@ -8,7 +8,7 @@ questions, each answered with a verified match and turned here into a pose in a 
   it is the drift, a `LoopFix`. It is acted on once `loop_consistency` consecutive keyframes
   agree on it, it is larger than what map reuse's projection search corrects by itself, and it
   passes the gate: the drift is one the estimator's own uncertainty allows (`loop_gate`) and one
-  the match tells from its own error (`loop_significance`).
+  the match tells from its own error (`drift_significant`).
 * **relocalization** (a lost frame): a keyframe of the segment's frame: the frame's pose there.
 * **merge** (each keyframe of a segment started after a reset): a keyframe of another frame: the
   transform that puts this segment's frame into that one, once `loop_consistency` consecutive
